@@ -1,0 +1,110 @@
+"""OpenEXR read/write of named float channels (OpenEXR 3.x python API, `OpenEXR.File`).
+
+Channels are (H, W) float32 arrays keyed by their full name ("R", "D", "rvr.D",
+"ViewLayer.Depth.Z"). Writes are atomic: a hidden temp file in the destination folder is
+renamed onto the target only after it is complete.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+from .paths import temp_sibling
+
+
+def _part_prefix(part, index: int, n_parts: int) -> str:
+    """Prefix for channel names of a part in a multi-part file ("" for single-part files)."""
+    if n_parts <= 1:
+        return ""
+    try:
+        name = part.name()
+    except Exception:  # pragma: no cover - defensive: older bindings expose a property
+        name = ""
+    return f"{name or f'part{index}'}."
+
+
+def read_exr(path: str | Path) -> dict[str, np.ndarray]:
+    """Read every channel of an EXR file.
+
+    Returns {name: (H, W) float32}. Half and float channels become float32, uint channels are
+    cast to float32. Multi-layer names are kept as written ("layer.channel"); in a multi-part
+    file each channel is prefixed with its part name ("left.Z") unless it already carries it.
+    Raises InputError naming the file when it is missing or is not a readable EXR.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"EXR file not found: '{path}'. Check the path or re-run the step that writes it.")
+    try:
+        exr = OpenEXR.File(str(path), separate_channels=True)
+        parts = list(exr.parts)
+        out: dict[str, np.ndarray] = {}
+        for index, part in enumerate(parts):
+            prefix = _part_prefix(part, index, len(parts))
+            for name, channel in part.channels.items():
+                full = name if (not prefix or name.startswith(prefix)) else prefix + name
+                out[full] = np.ascontiguousarray(channel.pixels, dtype=np.float32)
+    except Exception as ex:
+        raise InputError(
+            f"Cannot read EXR file '{path}': {ex}. The file is corrupt or not an OpenEXR image; "
+            "re-export it or delete it so it is recomputed."
+        ) from ex
+    if not out:
+        raise InputError(f"EXR file '{path}' has no channels; re-export it with at least one channel.")
+    return out
+
+
+def _check_channels(path: Path, channels: dict[str, np.ndarray], half: bool) -> dict[str, np.ndarray]:
+    if not channels:
+        raise OutputError(f"Cannot write EXR '{path}': no channels were given (pass at least one (H, W) array).")
+    shape = None
+    dtype = np.float16 if half else np.float32
+    prepared: dict[str, np.ndarray] = {}
+    for name, array in channels.items():
+        array = np.asarray(array)
+        if array.ndim != 2:
+            raise OutputError(
+                f"Cannot write EXR '{path}': channel '{name}' has shape {array.shape}; each channel must be (H, W)."
+            )
+        if shape is None:
+            shape = array.shape
+        elif array.shape != shape:
+            raise OutputError(
+                f"Cannot write EXR '{path}': channel '{name}' has shape {array.shape} but the others are {shape}; "
+                "all channels of one file must share a size."
+            )
+        prepared[str(name)] = np.ascontiguousarray(array, dtype=dtype)
+    return prepared
+
+
+def write_exr(path: str | Path, channels: dict[str, np.ndarray], half: bool = False) -> None:
+    """Write (H, W) channels to one single-part, ZIP-compressed scanline EXR, atomically.
+
+    half=True stores 16-bit half floats (smaller; about 3 significant digits), else 32-bit float.
+    The folder is created if needed. Raises OutputError naming the file on failure; an existing
+    file at `path` is replaced only once the new one is completely written.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    prepared = _check_channels(path, channels, half)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as ex:
+        raise OutputError(f"Cannot create the folder for EXR '{path}': {ex}. Choose a writable location.") from ex
+    tmp_name = str(temp_sibling(path, ".tmp.exr"))
+    try:
+        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        with OpenEXR.File(header, prepared) as exr:
+            exr.write(tmp_name)
+        os.replace(tmp_name, path)
+    except Exception as ex:
+        try:
+            os.unlink(tmp_name)
+        except OSError:
+            pass
+        raise OutputError(f"Cannot write EXR '{path}': {ex}. Check free disk space and write permission.") from ex

@@ -1,0 +1,268 @@
+"""Per-frame 2-D maps supplied by the user: disparity D or HDR exponent E.
+
+Sources: one file (used for every frame), a folder, a glob or a printf pattern of EXR, PNG,
+TIFF, NPY or NPZ files. Values are `raw * scale + offset`, with 8/16-bit images first
+normalised to [0, 1]. Disparity values are in px of blur radius at aperture 1 at the clip's
+native width, whatever the map's own resolution: resampling a map to the frame size does NOT
+rescale its values (scale them with `scale=` if your maps were made at another width).
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .paths import expand_sequence
+
+log = logging.getLogger(__name__)
+
+MAP_EXTENSIONS = (".exr", ".png", ".tif", ".tiff", ".npy", ".npz")
+DISPARITY_CHANNELS = ("D", "disparity", "Z", "Y", "R", "V")
+_KIND_NAMES = {"disparity": "depth", "hdr": "HDR exponent"}
+
+
+# ----------------------------------------------------------------------------- decoding one file
+
+
+def _find_channel(channels: dict[str, np.ndarray], name: str) -> np.ndarray | None:
+    """Channel `name`, or the first whose suffix after a layer prefix is `name` ("rvr.D")."""
+    if name in channels:
+        return channels[name]
+    for full, array in channels.items():
+        if full.endswith("." + name):
+            return array
+    return None
+
+
+def _exr_map(path: Path, kind: str) -> np.ndarray:
+    from .exr import read_exr
+
+    channels = read_exr(path)
+    if kind == "disparity":
+        for name in DISPARITY_CHANNELS:
+            found = _find_channel(channels, name)
+            if found is not None:
+                return found
+        wanted = ", ".join(DISPARITY_CHANNELS)
+    else:
+        for group in (("E",), ("E.R", "E.G", "E.B"), ("R", "G", "B"), ("Y",)):
+            found = [_find_channel(channels, name) for name in group]
+            if all(f is not None for f in found):
+                return found[0] if len(found) == 1 else np.stack(found, axis=2)
+        wanted = "E, E.R/E.G/E.B, R/G/B or Y"
+    raise InputError(
+        f"EXR map '{path}' has channels {sorted(channels)} but none of {wanted}; "
+        f"rename the {_KIND_NAMES[kind]} channel to one of these."
+    )
+
+
+def _image_map(path: Path, kind: str) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise InputError(f"Cannot read map '{path}': the file is corrupt or not an image OpenCV reads; re-export it.")
+    if image.dtype == np.uint8:
+        image = image.astype(np.float32) / 255.0
+    elif image.dtype == np.uint16:
+        image = image.astype(np.float32) / 65535.0
+    else:
+        image = image.astype(np.float32)
+    if image.ndim == 3:
+        if image.shape[2] >= 3:
+            image = image[:, :, 2::-1]  # BGR(A) -> RGB, alpha dropped
+        else:
+            image = image[:, :, 0]
+    if image.ndim == 3 and kind == "disparity":
+        image = image[:, :, 0]  # R channel of a colour image
+    return image
+
+
+def _numpy_map(path: Path, kind: str) -> np.ndarray:
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except Exception as ex:
+        raise InputError(f"Cannot read map '{path}': {ex}. Save it with numpy.save / numpy.savez.") from ex
+    if isinstance(loaded, np.lib.npyio.NpzFile):
+        with loaded:
+            if not loaded.files:
+                raise InputError(f"NPZ map '{path}' holds no arrays; save the map with numpy.savez(path, disparity=D).")
+            key = "disparity" if kind == "disparity" else "E"
+            array = loaded[key] if key in loaded.files else loaded[loaded.files[0]]
+    else:
+        array = loaded
+    array = np.asarray(array)
+    if array.ndim == 3 and array.shape[2] == 1:
+        array = array[:, :, 0]
+    if array.ndim == 3 and kind == "disparity":
+        array = array[:, :, 0]
+    return array.astype(np.float32)
+
+
+def _read_raw(path: Path, kind: str) -> np.ndarray:
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        array = _exr_map(path, kind)
+    elif suffix in (".npy", ".npz"):
+        array = _numpy_map(path, kind)
+    else:
+        array = _image_map(path, kind)
+    array = np.asarray(array, dtype=np.float32)
+    good = array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 3 and kind == "hdr")
+    if not good or min(array.shape[:2]) == 0:
+        want = "(H, W)" if kind == "disparity" else "(H, W) or (H, W, 3)"
+        raise InputError(f"Map '{path}' has shape {array.shape}; a {_KIND_NAMES[kind]} map must be {want}.")
+    return array
+
+
+def fill_nonfinite(array: np.ndarray) -> tuple[np.ndarray, int]:
+    """Replace NaN/inf by the nearest finite value, per channel. Returns (filled, count replaced).
+
+    array: (H, W) or (H, W, C) float32. A channel with no finite value is returned unchanged
+    (the caller reports it).
+    """
+    import cv2
+
+    bad = ~np.isfinite(array)
+    count = int(bad.sum())
+    if count == 0:
+        return array, 0
+    out = array.copy()
+    planes = [out] if out.ndim == 2 else [out[:, :, c] for c in range(out.shape[2])]
+    masks = [bad] if bad.ndim == 2 else [bad[:, :, c] for c in range(bad.shape[2])]
+    for plane, mask in zip(planes, masks):
+        if not mask.any() or mask.all():
+            continue
+        _, labels = cv2.distanceTransformWithLabels(
+            mask.astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE, labelType=cv2.DIST_LABEL_PIXEL
+        )
+        good = ~mask
+        lut = np.zeros(int(labels.max()) + 1, dtype=np.int64)
+        lut[labels[good]] = np.flatnonzero(good)
+        plane[mask] = plane.reshape(-1)[lut[labels[mask]]]
+    return out, count
+
+
+# ----------------------------------------------------------------------------- the sequence
+
+
+class MapSequence:
+    """Random access to per-frame maps, values as float32 `raw * scale + offset`.
+
+    `static` is True when one file serves every frame (then any index is valid and `len` is 1).
+    """
+
+    def __init__(self, source: str, paths: list[Path], kind: str, scale: float, offset: float, static: bool):
+        self.source = source
+        self.paths = paths
+        self.kind = kind
+        self.scale = float(scale)
+        self.offset = float(offset)
+        self.static = static
+        self._warned_size = False
+        self._warned_nonfinite = False
+        self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __repr__(self) -> str:
+        return f"MapSequence({self.source!r}, kind={self.kind!r}, maps={len(self)}, static={self.static})"
+
+    @property
+    def label(self) -> str:
+        """Human name of the sequence for messages ("the depth sequence 'maps/*.exr'")."""
+        return f"the {_KIND_NAMES[self.kind]} sequence '{self.source}'"
+
+    def check_length(self, n_frames: int) -> None:
+        """Raise InputError unless the sequence has a map for each of `n_frames` frames."""
+        if not self.static and len(self) < n_frames:
+            raise InputError(
+                f"{self.label} has {len(self)} maps but the clip has {n_frames} frames; supply one map per frame."
+            )
+
+    def path_for(self, index: int) -> Path:
+        """File that holds frame `index` (0-based); InputError when out of range."""
+        if self.static:
+            return self.paths[0]
+        if index < 0 or index >= len(self):
+            raise InputError(
+                f"{self.label} has {len(self)} maps but frame {index} was requested (frames count from 0); "
+                "supply one map per frame of the clip."
+            )
+        return self.paths[index]
+
+    def get(self, index: int, size: tuple[int, int] | None = None) -> np.ndarray:
+        """Map of frame `index` as float32 (H, W) (disparity; hdr maps may be (H, W, 3)).
+
+        size: (width, height) of the frame; a map of another size is resampled (bilinear) and
+        one warning is logged per sequence. Values are not rescaled by the resampling.
+        """
+        path = self.path_for(index)
+        if self.static and self._static_cache is not None and self._static_cache[0] == size:
+            return self._static_cache[1].copy()
+        array = self._load(path, size)
+        if self.static:
+            self._static_cache = (size, array)
+            return array.copy()
+        return array
+
+    def _load(self, path: Path, size: tuple[int, int] | None) -> np.ndarray:
+        import cv2
+
+        array = _read_raw(path, self.kind)
+        finite = np.isfinite(array)
+        if not finite.all():
+            if not finite.reshape(array.shape[0], array.shape[1], -1).any(axis=(0, 1)).all():
+                raise InputError(
+                    f"Map '{path}' has no finite value (all NaN or infinite); re-export it or remove it from "
+                    f"{self.label}."
+                )
+            array, count = fill_nonfinite(array)
+            level = logging.DEBUG if self._warned_nonfinite else logging.WARNING
+            log.log(level, "Map '%s' has %d NaN/infinite values; they were replaced by the nearest finite value.",
+                    path, count)
+            self._warned_nonfinite = True
+        if size is not None:
+            width, height = int(size[0]), int(size[1])
+            if (array.shape[1], array.shape[0]) != (width, height):
+                level = logging.DEBUG if self._warned_size else logging.WARNING
+                log.log(level, "Map '%s' is %dx%d but the frame is %dx%d; resampling it (values are not rescaled).",
+                        path, array.shape[1], array.shape[0], width, height)
+                self._warned_size = True
+                array = cv2.resize(array, (width, height), interpolation=cv2.INTER_LINEAR)
+        if self.scale != 1.0 or self.offset != 0.0:
+            array = array * np.float32(self.scale) + np.float32(self.offset)
+        return np.ascontiguousarray(array, dtype=np.float32)
+
+
+def open_map_sequence(path: str | Path, kind: str = "disparity", scale: float = 1.0, offset: float = 0.0) -> MapSequence:
+    """Open per-frame maps of `kind` "disparity" or "hdr" (files are read lazily by `get`).
+
+    Raises InputError naming the path when nothing is found or a setting is invalid.
+    """
+    if kind not in _KIND_NAMES:
+        raise InputError(f"Map kind {kind!r} is not known; use 'disparity' or 'hdr'.")
+    if not (np.isfinite(scale) and np.isfinite(offset)):
+        raise InputError(f"Map scale={scale!r} / offset={offset!r} for '{path}' must be finite numbers.")
+    text = str(path)
+    how, files = expand_sequence(text, MAP_EXTENSIONS)
+    name = _KIND_NAMES[kind]
+    if how == "missing":
+        raise InputError(
+            f"The {name} maps '{text}' were not found. Give a file, a folder, a glob such as 'depth/*.exr' "
+            "or a printf pattern such as 'depth/d_%04d.exr'."
+        )
+    if not files:
+        where = "Folder" if how == "directory" else "Pattern"
+        raise InputError(
+            f"{where} '{text}' holds no {name} maps ({', '.join(MAP_EXTENSIONS)}); check the path and file names."
+        )
+    unsupported = [p for p in files if p.suffix.lower() not in MAP_EXTENSIONS]
+    if unsupported:
+        raise InputError(
+            f"'{unsupported[0]}' is not a supported map format; use one of {', '.join(MAP_EXTENSIONS)}."
+        )
+    return MapSequence(text, files, kind, scale, offset, static=(how == "file"))

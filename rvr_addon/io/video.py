@@ -1,0 +1,396 @@
+"""Video and image-sequence input: probe a clip, stream its frames as uint8 RGB.
+
+A clip is either a container OpenCV's FFmpeg backend decodes (mp4, mov, mkv, ...) or an image
+sequence given as a folder (natural order: frame2 < frame10), a glob pattern ("shots/*.png")
+or a printf pattern ("frames/f_%04d.png"). Display rotation metadata of phone videos is
+applied, so frames come out upright. Frames are streamed, never held as a whole clip.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..errors import InputError, VideoOpenError
+from .paths import expand_sequence
+
+log = logging.getLogger(__name__)
+
+IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr", ".webp")
+DEFAULT_SEQUENCE_FPS = 24.0
+_SEQUENCE_HELP = (
+    "give a video file, a folder of images, a glob such as 'shots/*.png' "
+    "or a printf pattern such as 'frames/f_%04d.png'"
+)
+
+
+@dataclass(frozen=True)
+class ClipInfo:
+    """What a clip is: size in px (upright, after display rotation), frame rate in frames/s."""
+
+    path: Path
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+    has_audio: bool
+    kind: str  # "video" or "images"
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def ffmpeg_exe() -> str:
+    """Path of the ffmpeg binary bundled with imageio-ffmpeg."""
+    import imageio_ffmpeg
+
+    return imageio_ffmpeg.get_ffmpeg_exe()
+
+
+def _resolve(path: str | Path) -> tuple[str, Path, list[Path]]:
+    """(kind, display path, files): kind "video" (files = [file]) or "images" (ordered frames)."""
+    if isinstance(path, ClipInfo):
+        path = path.path
+    text = str(path)
+    how, files = expand_sequence(text, IMAGE_EXTENSIONS)
+    shown = Path(text)
+    if how == "missing":
+        raise VideoOpenError(f"Input not found: '{text}'. Check the path; {_SEQUENCE_HELP}.")
+    if how == "file":
+        kind = "images" if shown.suffix.lower() in IMAGE_EXTENSIONS else "video"
+        return kind, shown, files
+    if not files:
+        if how == "directory":
+            raise VideoOpenError(
+                f"Folder '{text}' contains no images ({', '.join(IMAGE_EXTENSIONS)}). "
+                "Put the frames there, or point to the video file itself."
+            )
+        raise VideoOpenError(f"No files match the pattern '{text}'. Check the folder and the file names; {_SEQUENCE_HELP}.")
+    return "images", shown, files
+
+
+def _to_rgb8(image: np.ndarray, source: Path) -> np.ndarray:
+    """Any OpenCV-decoded image (BGR/BGRA/gray, 8/16-bit/float) -> (H, W, 3) uint8 RGB.
+
+    16-bit is rounded to 8-bit; floats are taken as display values in [0, 1] and clipped;
+    alpha is dropped (not composited).
+    """
+    if image.ndim == 2:
+        image = image[:, :, None]
+    channels = image.shape[2]
+    if channels >= 3:
+        image = image[:, :, 2::-1]  # BGR(A) -> RGB
+    else:
+        image = np.repeat(image[:, :, :1], 3, axis=2)
+    if image.dtype == np.uint8:
+        return np.ascontiguousarray(image)
+    if image.dtype == np.uint16:
+        return ((image.astype(np.uint32) + 128) // 257).astype(np.uint8)
+    if np.issubdtype(image.dtype, np.floating):
+        from ..color import to_uint8
+
+        return to_uint8(np.nan_to_num(image.astype(np.float32), nan=0.0))
+    raise VideoOpenError(f"Image '{source}' has pixel type {image.dtype}, which is not supported; save it as 8- or 16-bit PNG.")
+
+
+def _read_exr_rgb8(path: Path) -> np.ndarray:
+    """Linear EXR frame -> sRGB-encoded (H, W, 3) uint8 (channels R,G,B or Y)."""
+    from ..color import linear_to_srgb, to_uint8
+    from .exr import read_exr
+
+    try:
+        channels = read_exr(path)
+    except InputError as ex:
+        raise VideoOpenError(str(ex)) from ex
+    if all(c in channels for c in ("R", "G", "B")):
+        rgb = np.stack([channels["R"], channels["G"], channels["B"]], axis=2)
+    elif "Y" in channels:
+        rgb = np.repeat(channels["Y"][:, :, None], 3, axis=2)
+    else:
+        raise VideoOpenError(
+            f"EXR frame '{path}' has channels {sorted(channels)} but no R,G,B or Y; export the frames as RGB EXR."
+        )
+    return to_uint8(linear_to_srgb(np.nan_to_num(rgb, nan=0.0)))
+
+
+def read_image_rgb8(path: Path) -> np.ndarray:
+    """Read one image file as (H, W, 3) uint8 RGB; raise VideoOpenError naming it if unreadable."""
+    import cv2
+
+    if path.suffix.lower() == ".exr":
+        return _read_exr_rgb8(path)
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise VideoOpenError(
+            f"Cannot read image '{path}': the file is missing, corrupt or not an image format OpenCV reads. "
+            "Re-export the frame (PNG is safest) or remove it from the sequence."
+        )
+    return _to_rgb8(image, path)
+
+
+# ----------------------------------------------------------------------------- video via ffmpeg
+
+_STREAM_FPS = re.compile(r"([\d.]+)(k?) fps, ([\d.]+)(k?) tbr")
+_PACKET_FLAGS = re.compile(r"F=0x([0-9a-fA-F]+)")
+_SIZE_CHANGE = re.compile(
+    r"filter context - w: (\d+) h: (\d+).*?incoming frame - w: (\d+) h: (\d+).*?pts_time: ([-\d.]+|NOPTS)"
+)
+_DISCARD_FLAG = 0x4  # AV_PKT_FLAG_DISCARD: packet kept only for decoding, e.g. cut away by an MP4 edit list
+
+
+def _tail(text: str, lines: int = 12) -> str:
+    kept = [line for line in text.strip().splitlines() if line.strip()]
+    return "\n".join(kept[-lines:])
+
+
+def _scan_with_ffmpeg(path: Path) -> tuple[int, bool, str]:
+    """Count the shown frames of the first video stream without decoding, and look for audio.
+
+    Lists packets by stream copy (framecrc) and skips packets flagged discard, which MP4 edit
+    lists (trimmed clips) keep only for decoding; the count then equals the decoded frames.
+    Returns (frame count, has_audio, ffmpeg's description of the input).
+    """
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:V:0", "-c", "copy",
+           "-f", "framecrc", "-"]
+    try:
+        run = subprocess.run(cmd, capture_output=True, check=False)
+    except OSError as ex:  # pragma: no cover - the binary ships with imageio-ffmpeg
+        raise VideoOpenError(f"Cannot run ffmpeg to read '{path}': {ex}. Reinstall the imageio-ffmpeg package.") from ex
+    stderr = run.stderr.decode("utf-8", "replace")
+    description = stderr.split("Stream mapping:")[0].split("Output #0")[0]
+    if run.returncode != 0:
+        if "matches no streams" in stderr:
+            raise VideoOpenError(f"'{path}' has no video stream; choose a video file or an image sequence.")
+        raise VideoOpenError(
+            f"Cannot open video '{path}': FFmpeg could not read it. The file may be corrupt, incomplete or not a "
+            f"video; re-export it (H.264 MP4 is safest).\nffmpeg said:\n{_tail(stderr)}"
+        )
+    has_audio = re.search(r"Stream #\d+:\d+.*: Audio:", description) is not None
+    count = 0
+    for line in run.stdout.decode("ascii", "replace").splitlines():
+        if not line or line.startswith("#"):
+            continue
+        flags = _PACKET_FLAGS.search(line)
+        if flags is None or not int(flags.group(1), 16) & _DISCARD_FLAG:
+            count += 1
+    return count, has_audio, description
+
+
+def _container_fps(path: Path) -> float:
+    """Average frame rate as OpenCV's FFmpeg backend reports it (0.0 when unknown)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    try:
+        fps = float(cap.get(cv2.CAP_PROP_FPS)) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    return fps if np.isfinite(fps) and fps > 0 else 0.0
+
+
+def _warn_if_vfr(path: Path, description: str, fps: float) -> None:
+    match = _STREAM_FPS.search(description)
+    if not match:
+        return
+    average = float(match.group(1)) * (1000 if match.group(2) else 1)
+    nominal = float(match.group(3)) * (1000 if match.group(4) else 1)
+    if average > 0 and nominal > 0 and abs(average - nominal) > 0.02 * nominal:
+        log.warning(
+            "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). Frames are used in decode "
+            "order at %.4g fps; convert the clip to a constant frame rate if timing matters.",
+            path, average, nominal, fps,
+        )
+
+
+def _read_exact(stream, count: int) -> bytearray | None:
+    """Read exactly `count` bytes (None at a clean end of stream)."""
+    buf = bytearray(count)
+    view = memoryview(buf)
+    got = 0
+    while got < count:
+        n = stream.readinto(view[got:])
+        if not n:
+            return None if got == 0 else buf[:got]
+        got += n
+    return buf
+
+
+def _read_ppm(stream, video: Path) -> np.ndarray | None:
+    """Next binary PPM frame (as ffmpeg's ppm encoder writes it) -> (H, W, 3) uint8, None at the end."""
+    magic = stream.readline()
+    if not magic:
+        return None
+    dims = stream.readline().split()
+    maxval = stream.readline().strip()
+    if magic.strip() != b"P6" or len(dims) != 2 or maxval != b"255":
+        raise VideoOpenError(f"Unexpected data while decoding '{video}'; the ffmpeg output was not a PPM stream.")
+    width, height = int(dims[0]), int(dims[1])
+    data = _read_exact(stream, width * height * 3)
+    if data is None or len(data) != width * height * 3:
+        return None
+    return np.frombuffer(data, dtype=np.uint8).reshape(height, width, 3)
+
+
+def _size_change(log_file, fps: float) -> tuple[str, str, float | None] | None:
+    """(old size, new size, time in s) if ffmpeg logged a mid-stream resolution change."""
+    log_file.seek(0)
+    text = log_file.read().decode("utf-8", "replace")
+    for match in _SIZE_CHANGE.finditer(text):
+        old, new = (match.group(1), match.group(2)), (match.group(3), match.group(4))
+        if old != new:
+            t = None if match.group(5) == "NOPTS" else float(match.group(5))
+            return f"{old[0]}x{old[1]}", f"{new[0]}x{new[1]}", t
+    return None
+
+
+def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
+    """Decode with the bundled ffmpeg into a PPM pipe.
+
+    ffmpeg (unlike OpenCV's capture, which always assumes BT.601) converts with the colour
+    matrix the file is tagged with (BT.709 for HD phone video) and applies display rotation.
+    `-reinit_filter 0` makes a mid-stream resolution change show up in its log instead of
+    being scaled away silently; it is then reported as an InputError.
+    """
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "warning", "-reinit_filter", "0",
+           "-i", str(video), "-map", "0:V:0", "-fps_mode", "passthrough", "-an", "-sn", "-dn"]
+    if start > 0:
+        cmd += ["-vf", f"select=gte(n\\,{start})"]
+    if stop is not None:
+        cmd += ["-frames:v", str(stop - start)]
+    cmd += ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
+    fps = _container_fps(video) or DEFAULT_SEQUENCE_FPS
+    with tempfile.TemporaryFile() as log_file:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
+        try:
+            index, want, log_size = start, None, 0
+            while True:
+                frame = _read_ppm(proc.stdout, video)
+                size = os.fstat(log_file.fileno()).st_size
+                if size != log_size or frame is None:
+                    log_size = size
+                    change = _size_change(log_file, fps)
+                    if change is not None:
+                        old, new, t = change
+                        at = f"frame {round(t * fps)} (t={t:.3f} s)" if t is not None else f"after frame {index - 1}"
+                        raise InputError(
+                            f"Video '{video}' changes resolution from {old} to {new} at {at}; a clip must keep one "
+                            "resolution. Re-export it at a fixed size (e.g. ffmpeg -vf scale=W:H) or split it."
+                        )
+                if frame is None:
+                    break
+                if want is None:
+                    want = frame.shape
+                elif frame.shape != want:
+                    raise _size_error(index, video, frame.shape, want)
+                yield frame
+                index += 1
+            proc.stdout.close()
+            if proc.wait() != 0:
+                log_file.seek(0)
+                raise VideoOpenError(
+                    f"Decoding '{video}' failed after frame {index - 1}; the file may be corrupt or truncated. "
+                    f"Re-export or re-copy it.\nffmpeg said:\n{_tail(log_file.read().decode('utf-8', 'replace'))}"
+                )
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait()
+            if proc.stdout is not None:
+                proc.stdout.close()
+
+
+# ----------------------------------------------------------------------------- public API
+
+
+def _check_fps(fps: float | None) -> float | None:
+    if fps is None:
+        return None
+    if not np.isfinite(fps) or fps <= 0:
+        raise InputError(f"Frame rate fps={fps!r} is not valid; give a positive number of frames per second, e.g. 24.")
+    return float(fps)
+
+
+def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
+    """Describe a clip, decoding only its first frame.
+
+    fps: frames/s of an image sequence (default 24.0); for a video it overrides the container
+    rate (use it for mislabelled or variable-frame-rate clips). width/height are those of the
+    decoded (upright) frames. frame_count of a video counts the frames of its first video
+    stream from the packet list (exact, unlike container metadata, and honouring MP4 edit
+    lists). Raises VideoOpenError naming the path and the fix.
+    """
+    fps = _check_fps(fps)
+    kind, shown, files = _resolve(path)
+    if kind == "images":
+        first = read_image_rgb8(files[0])
+        return ClipInfo(shown, int(first.shape[1]), int(first.shape[0]), fps or DEFAULT_SEQUENCE_FPS,
+                        len(files), False, "images")
+    video = files[0]
+    count, has_audio, description = _scan_with_ffmpeg(video)
+    frames = _iter_video(video, 0, 1)
+    try:
+        first = next(frames, None)
+    finally:
+        frames.close()
+    if first is None or count <= 0:
+        raise VideoOpenError(f"Video '{video}' has no decodable frames; the file may be truncated. Re-export or re-copy it.")
+    if fps is None:
+        fps = _container_fps(video)
+        if not fps:
+            fps = DEFAULT_SEQUENCE_FPS
+            log.warning("'%s' has no frame rate; assuming %.4g fps. Pass fps= to set it.", video, fps)
+        _warn_if_vfr(video, description, fps)
+    return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video")
+
+
+def _check_range(path: str | Path, start: int, stop: int | None) -> None:
+    if start < 0:
+        raise InputError(f"start={start} for '{path}' is negative; frames are counted from 0.")
+    if stop is not None and stop < start:
+        raise InputError(f"stop={stop} is before start={start} for '{path}'; give stop >= start (or None for the end).")
+
+
+def _size_error(index: int, source: Path, got: tuple, want: tuple) -> InputError:
+    return InputError(
+        f"Frame {index} of '{source}' is {got[1]}x{got[0]} but the clip's first frame is {want[1]}x{want[0]}; "
+        "a clip must keep one resolution. Re-export it at a fixed size (e.g. ffmpeg -vf scale=W:H)."
+    )
+
+
+def iter_frames(path: str | Path, start: int = 0, stop: int | None = None) -> Iterator[np.ndarray]:
+    """Yield frames start..stop-1 (stop None = to the end) as (H, W, 3) uint8 RGB.
+
+    Streams one decoded frame at a time. Videos are positioned by decoding forward (exact for
+    every codec and for variable frame rate; costs decode time for a large start). Raises
+    VideoOpenError when the clip cannot be opened, InputError when a frame's size differs from
+    the first frame's.
+    """
+    _check_range(path, start, stop)
+    kind, shown, files = _resolve(path)
+    if stop is not None and stop == start:
+        return
+    if kind == "images":
+        yield from _iter_images(files, start, stop)
+    else:
+        yield from _iter_video(files[0], start, stop)
+
+
+def _iter_images(files: list[Path], start: int, stop: int | None) -> Iterator[np.ndarray]:
+    end = len(files) if stop is None else min(stop, len(files))
+    if start >= end:
+        return
+    want = read_image_rgb8(files[0]).shape if start > 0 else None
+    for index in range(start, end):
+        frame = read_image_rgb8(files[index])
+        if want is None:
+            want = frame.shape
+        elif frame.shape != want:
+            raise _size_error(index, files[index], frame.shape, want)
+        yield frame

@@ -1,0 +1,297 @@
+"""Atomic video and image-sequence output.
+
+Nothing half-written is ever left at the destination: `VideoWriter` encodes into a hidden
+temp file beside the target, `ImageSequenceWriter` into a hidden temp folder beside it, and
+each is renamed onto the target only when closed successfully. On an exception inside the
+`with` block (or `abort()`), the temp is deleted and an earlier result survives untouched.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError, OutputError
+from .paths import temp_sibling
+from .video import ffmpeg_exe, probe_clip
+
+log = logging.getLogger(__name__)
+
+
+def _tail(data: bytes, lines: int = 15) -> str:
+    kept = [line for line in data.decode("utf-8", "replace").strip().splitlines() if line.strip()]
+    return "\n".join(kept[-lines:]) or "(ffmpeg printed nothing)"
+
+
+def _has_audio(source: str | Path) -> bool:
+    """True if `source` is a video with an audio stream; InputError if it does not exist."""
+    if not Path(source).exists():
+        raise InputError(f"Audio source '{source}' not found; pass the original clip as audio_from, or None.")
+    try:
+        return probe_clip(source).has_audio
+    except InputError as ex:
+        log.warning("No audio taken from '%s' (%s); the video is written without sound.", source, ex)
+        return False
+
+
+class VideoWriter:
+    """Encode uint8 RGB frames to an H.264 (libx264, yuv420p, +faststart) MP4 with the bundled ffmpeg.
+
+    path: destination file (its folder is created). fps: frames/s. size: (width, height) in px
+    of every frame; odd sizes are padded by one black row/column to even. audio_from: a clip
+    whose first audio stream is re-encoded to AAC and muxed in, starting `audio_start` seconds
+    into it; audio longer than the video is cut, shorter is padded with silence, so the video
+    keeps exactly the frames written. crf: x264 quality (0 lossless .. 51 worst; 18 ~ visually
+    lossless). Colours are converted with the BT.709 matrix and tagged BT.709.
+    """
+
+    def __init__(self, path: str | Path, fps: float, size: tuple[int, int], audio_from: str | Path | None = None,
+                 crf: int = 18, audio_start: float = 0.0):
+        self.path = Path(path)
+        width, height = int(size[0]), int(size[1])
+        if width <= 0 or height <= 0:
+            raise InputError(f"Output size {size} for '{self.path}' is not valid; give (width, height) in px > 0.")
+        if not (np.isfinite(fps) and fps > 0):
+            raise InputError(f"Output frame rate fps={fps!r} for '{self.path}' is not valid; give a positive number.")
+        if not 0 <= int(crf) <= 51:
+            raise InputError(f"crf={crf} for '{self.path}' is out of range; use 0 (lossless) .. 51 (18 is a good default).")
+        if not (np.isfinite(audio_start) and audio_start >= 0):
+            raise InputError(f"audio_start={audio_start!r} s for '{self.path}' must be a number >= 0 (seconds into audio_from).")
+        self.size = (width, height)
+        self.fps = float(fps)
+        self.frames_written = 0
+        self._with_audio = audio_from is not None and _has_audio(audio_from)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as ex:
+            raise OutputError(f"Cannot create the folder of '{self.path}': {ex}. Choose a writable location.") from ex
+        self._tmp = temp_sibling(self.path, ".tmp.mp4")
+        self._log = tempfile.TemporaryFile()
+        cmd = self._command(audio_from, int(crf), float(audio_start))
+        try:
+            self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
+        except OSError as ex:
+            self._log.close()
+            raise OutputError(f"Cannot start ffmpeg to write '{self.path}': {ex}. Reinstall imageio-ffmpeg.") from ex
+        self._closed = False
+
+    def _command(self, audio_from: str | Path | None, crf: int, audio_start: float) -> list[str]:
+        width, height = self.size
+        rate = Fraction(self.fps).limit_denominator(1001)
+        cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "error", "-y",
+               "-f", "rawvideo", "-pix_fmt", "rgb24", "-video_size", f"{width}x{height}",
+               "-framerate", f"{rate.numerator}/{rate.denominator}", "-i", "pipe:0"]
+        if self._with_audio:
+            if audio_start > 0:
+                cmd += ["-ss", f"{audio_start:.6f}"]
+            cmd += ["-i", str(audio_from), "-map", "0:v:0", "-map", "1:a:0",
+                    "-af", "apad", "-c:a", "aac", "-b:a", "192k", "-shortest"]
+        filters = []
+        if width % 2 or height % 2:
+            filters.append("pad=ceil(iw/2)*2:ceil(ih/2)*2:0:0:black")
+        filters.append("scale=out_color_matrix=bt709:out_range=tv,format=yuv420p,"
+                       "setparams=colorspace=bt709:color_primaries=bt709:color_trc=bt709:range=tv")
+        cmd += ["-vf", ",".join(filters), "-c:v", "libx264", "-preset", "medium", "-crf", str(crf),
+                "-pix_fmt", "yuv420p", "-colorspace", "bt709", "-color_primaries", "bt709", "-color_trc", "bt709",
+                "-color_range", "tv", "-movflags", "+faststart", "-f", "mp4", str(self._tmp)]
+        return cmd
+
+    def __enter__(self) -> "VideoWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def write(self, frame: np.ndarray) -> None:
+        """Append one frame: (H, W, 3) uint8 RGB with (W, H) == size."""
+        if self._closed:
+            raise OutputError(f"VideoWriter for '{self.path}' is already closed; open a new one to write more frames.")
+        frame = np.asarray(frame)
+        width, height = self.size
+        if frame.dtype != np.uint8 or frame.shape != (height, width, 3):
+            raise InputError(
+                f"Frame {self.frames_written} for '{self.path}' is {frame.dtype} {frame.shape}; expected uint8 "
+                f"({height}, {width}, 3) RGB. Convert with rvr_addon.color.to_uint8 and keep one size."
+            )
+        try:
+            self._proc.stdin.write(np.ascontiguousarray(frame).data)
+        except (BrokenPipeError, OSError) as ex:
+            self.abort()
+            raise OutputError(f"ffmpeg stopped while writing '{self.path}': {self._stderr()}") from ex
+        self.frames_written += 1
+
+    def _stderr(self) -> str:
+        self._log.seek(0)
+        return _tail(self._log.read())
+
+    def close(self) -> None:
+        """Finish encoding and move the file onto `path`. Raises OutputError if ffmpeg failed."""
+        if self._closed:
+            return
+        if self.frames_written == 0:
+            self.abort()
+            raise OutputError(f"No frames were written to '{self.path}'; nothing was saved (the old file is kept).")
+        try:
+            self._proc.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass
+        code = self._proc.wait()
+        self._closed = True
+        try:
+            if code != 0:
+                raise OutputError(
+                    f"ffmpeg failed ({code}) writing '{self.path}'; nothing was saved. ffmpeg said:\n{self._stderr()}"
+                )
+            try:
+                os.replace(self._tmp, self.path)
+            except OSError as ex:
+                raise OutputError(f"Cannot move the finished video onto '{self.path}': {ex}. Check permissions.") from ex
+        finally:
+            self._log.close()
+            _unlink(self._tmp)
+
+    def abort(self) -> None:
+        """Stop ffmpeg and delete the temp file; the destination is left as it was."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._proc.poll() is None:
+            self._proc.kill()
+        try:
+            self._proc.stdin.close()
+        except (BrokenPipeError, OSError):
+            pass
+        self._proc.wait()
+        self._log.close()
+        _unlink(self._tmp)
+
+
+def _unlink(path: Path) -> None:
+    try:
+        path.unlink()
+    except FileNotFoundError:
+        pass
+    except OSError as ex:  # pragma: no cover - e.g. a locked file on Windows
+        log.warning("Could not remove temp file '%s': %s", path, ex)
+
+
+class ImageSequenceWriter:
+    """Write numbered frames into `directory`, replacing it atomically on success.
+
+    pattern: printf file name ("frame_%05d.png"); the suffix picks the format. PNG/JPG/TIF take
+    (H, W, 3) uint8 RGB (PNG/TIF also uint16); ".exr" takes (H, W, 3) float linear RGB written as
+    float32 R, G, B. Numbering starts at `start`. Frames go to a hidden temp folder beside
+    `directory`; `close()` swaps it in (an existing folder is moved aside and deleted only
+    after the new one is in place); an exception inside `with`, or `abort()`, deletes the temp.
+    """
+
+    def __init__(self, directory: str | Path, pattern: str = "frame_%05d.png", start: int = 1):
+        self.directory = Path(directory)
+        try:
+            pattern % 1
+        except (TypeError, ValueError) as ex:
+            raise InputError(f"File pattern {pattern!r} needs one integer field such as %05d.") from ex
+        if "/" in pattern or "\\" in pattern:
+            raise InputError(f"File pattern {pattern!r} must be a file name only; put folders in `directory`.")
+        self.pattern = pattern
+        self.start = int(start)
+        self.suffix = Path(pattern % 0).suffix.lower()
+        if self.suffix not in (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr"):
+            raise InputError(f"File pattern {pattern!r} has an unsupported type; use .png, .jpg, .tif or .exr.")
+        if self.directory.exists() and not self.directory.is_dir():
+            raise OutputError(f"'{self.directory}' is a file, not a folder; choose another output folder.")
+        try:
+            self.directory.parent.mkdir(parents=True, exist_ok=True)
+            self._tmp = temp_sibling(self.directory, ".tmp")
+            self._tmp.mkdir()
+        except OSError as ex:
+            raise OutputError(f"Cannot create a folder beside '{self.directory}': {ex}. Choose a writable location.") from ex
+        self.frames_written = 0
+        self._shape: tuple[int, ...] | None = None
+        self._closed = False
+
+    def __enter__(self) -> "ImageSequenceWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def write(self, frame: np.ndarray) -> Path:
+        """Write the next frame; returns the final path it will have after close()."""
+        if self._closed:
+            raise OutputError(f"The writer for '{self.directory}' is already closed; open a new one.")
+        frame = np.asarray(frame)
+        name = self.pattern % (self.start + self.frames_written)
+        self._check(frame, name)
+        target = self._tmp / name
+        if self.suffix == ".exr":
+            from .exr import write_exr
+
+            write_exr(target, {"R": frame[:, :, 0], "G": frame[:, :, 1], "B": frame[:, :, 2]})
+        else:
+            import cv2
+
+            if not cv2.imwrite(str(target), np.ascontiguousarray(frame[:, :, ::-1])):
+                raise OutputError(f"Cannot write frame '{self.directory / name}'; check free disk space.")
+        self.frames_written += 1
+        return self.directory / name
+
+    def _check(self, frame: np.ndarray, name: str) -> None:
+        if self.suffix == ".exr":
+            good = np.issubdtype(frame.dtype, np.floating)
+            want = "float linear RGB"
+        else:
+            allowed = (np.uint8, np.uint16) if self.suffix in (".png", ".tif", ".tiff") else (np.uint8,)
+            good = frame.dtype in allowed
+            want = "uint8 RGB" if len(allowed) == 1 else "uint8 or uint16 RGB"
+        if not good or frame.ndim != 3 or frame.shape[2] != 3:
+            raise InputError(f"Frame '{name}' for '{self.directory}' is {frame.dtype} {frame.shape}; expected (H, W, 3) {want}.")
+        if self._shape is None:
+            self._shape = frame.shape
+        elif frame.shape != self._shape:
+            raise InputError(
+                f"Frame '{name}' for '{self.directory}' is {frame.shape[1]}x{frame.shape[0]} but the first frame was "
+                f"{self._shape[1]}x{self._shape[0]}; keep one size per sequence."
+            )
+
+    def close(self) -> None:
+        """Swap the finished folder in place of `directory`."""
+        if self._closed:
+            return
+        if self.frames_written == 0:
+            self.abort()
+            raise OutputError(f"No frames were written to '{self.directory}'; nothing was saved (the old folder is kept).")
+        self._closed = True
+        old = None
+        try:
+            if self.directory.exists():
+                old = temp_sibling(self.directory, ".old")
+                os.replace(self.directory, old)
+            os.replace(self._tmp, self.directory)
+        except OSError as ex:
+            if old is not None and not self.directory.exists():
+                os.replace(old, self.directory)  # put the earlier result back
+                old = None
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise OutputError(f"Cannot move the finished frames into '{self.directory}': {ex}. Check permissions.") from ex
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+
+    def abort(self) -> None:
+        """Delete the temp folder; `directory` is left as it was."""
+        if self._closed:
+            return
+        self._closed = True
+        shutil.rmtree(self._tmp, ignore_errors=True)

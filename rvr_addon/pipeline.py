@@ -1,0 +1,262 @@
+"""Render a clip: frames + disparity (+ HDR) + focus track -> shallow-DOF video / images.
+
+:class:`RenderJob` is the one driver every front end uses: the CLI and ``execute()`` loop
+``while job.step(): pass``; a Blender modal operator calls ``step()`` from a timer and
+``cancel()`` on Esc. Outputs are written atomically: nothing half-written is left at an
+output path, and an earlier result there survives a failure or a cancel.
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
+from .errors import Cancelled, InputError
+from .io.maps import open_map_sequence
+from .io.track import FocusTrack, constant_track, load_track, resolve_track
+from .io.video import ClipInfo, iter_frames, probe_clip
+from .io.writer import ImageSequenceWriter, VideoWriter
+from .render.aperture import ApertureSpec
+from .render.fast import FastRenderer
+from .render.model import K_HDR, hdr_radiance
+
+log = logging.getLogger(__name__)
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".m4v")
+
+
+@dataclass
+class RenderSettings:
+    """Everything a render needs; paths are files, folders or frame patterns.
+
+    focus: constant focus disparity, or None with no track = the median disparity of the
+        centre of the first frame (a simple default until autofocus is chosen).
+    aperture: constant aperture scale (>= 0; 0 = no synthetic blur) when there is no track.
+    track / track_data: a focus track file, or one in memory (e.g. sampled from F-curves);
+        either overrides focus and aperture.
+    outputs: .mp4/.mov/.mkv files (H.264, source audio kept) and/or folders or patterns
+        (``frame_%05d.png``; a ``.exr`` pattern writes linear HDR radiance).
+    """
+
+    input: Path
+    depth: Path
+    outputs: list[Path]
+    hdr: Path | None = None
+    focus: float | None = None
+    aperture: float = 1.0
+    track: Path | None = None
+    track_data: FocusTrack | None = None
+    spec: ApertureSpec = field(default_factory=ApertureSpec)
+    depth_scale: float = 1.0
+    depth_offset: float = 0.0
+    naive: bool = False
+    start: int = 0
+    stop: int | None = None
+    fps: float | None = None
+    keep_audio: bool = True
+    max_step: float = 1.0
+    min_layers: int = 1
+
+
+def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_level: float = 0.999) -> np.ndarray:
+    """HDR exponent E (H, W, 3) float32 with ``linear(image) * exp(K_HDR E) = radiance``.
+
+    Only pixels clipped in the 8-bit image (linear >= clip_level) get E != 0: below the clip,
+    the 8-bit value is the truth up to quantisation. Used for ground-truth HDR inputs.
+    """
+    lin = srgb_to_linear(to_float01(image_srgb))
+    ratio = np.maximum(radiance, 1e-6) / np.maximum(lin, 1e-6)
+    e = np.log(np.maximum(ratio, 1.0)) / K_HDR
+    return np.where(lin >= clip_level, e, 0.0).astype(np.float32)
+
+
+def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None:
+    """Add to a demo-scene folder the HDR exponents (``hdr_exponent/*.npy``, from the exact
+    radiance in ``hdr/``) and a rack-focus track (``focus_track.json``: subject, then a pull
+    to the background over the middle third). Idempotent."""
+    import json
+
+    import cv2
+
+    from .io.exr import read_exr
+
+    meta = json.loads((directory / "meta.json").read_text())
+    n = int(meta["frames"])
+    out = directory / "hdr_exponent"
+    if not out.is_dir() or len(list(out.glob("*.npy"))) < n:
+        tmp = directory / ".hdr_exponent.tmp"
+        tmp.mkdir(exist_ok=True)
+        for png in sorted((directory / "frames").glob("*.png")):
+            ch = read_exr(directory / "hdr" / (png.stem + ".exr"))
+            radiance = np.dstack([ch["R"], ch["G"], ch["B"]])
+            srgb = cv2.cvtColor(cv2.imread(str(png), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            np.save(tmp / (png.stem + ".npy"), exponent_from_radiance(srgb, radiance))
+        if out.exists():
+            _replace_dir(tmp, out)
+        else:
+            tmp.replace(out)
+    track = directory / "focus_track.json"
+    if not track.is_file():
+        near, far = float(meta["subject_disparity"]), float(meta["background_disparity"])
+        pull = pull_frames or max(n // 3, 1)
+        a = max((n - pull) // 2, 0)
+        keys = [{"frame": 0, "focus": near, "aperture": 1.0}, {"frame": a, "focus": near, "aperture": 1.0},
+                {"frame": a + pull, "focus": far, "aperture": 1.0}, {"frame": n - 1, "focus": far, "aperture": 1.0}]
+        track.write_text(json.dumps({"keys": keys}, indent=1))
+
+
+def _replace_dir(new: Path, old: Path) -> None:
+    import shutil
+
+    aside = old.with_name(old.name + ".old")
+    old.replace(aside)
+    new.replace(old)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def center_focus(disparity: np.ndarray, fraction: float = 0.2) -> float:
+    """Median disparity of the central box (``fraction`` of each side): a default focus."""
+    h, w = disparity.shape
+    dy, dx = max(int(h * fraction / 2), 1), max(int(w * fraction / 2), 1)
+    return float(np.median(disparity[h // 2 - dy:h // 2 + dy, w // 2 - dx:w // 2 + dx]))
+
+
+class RenderJob:
+    """A cancellable, stepwise render of one clip (see module docstring)."""
+
+    def __init__(self, settings: RenderSettings) -> None:
+        self.settings = settings
+        s = settings
+        if not s.outputs:
+            raise InputError("no output given: pass -o OUT.mp4 and/or -o FRAMES_DIR")
+        if s.aperture is not None and (not np.isfinite(s.aperture) or s.aperture < 0):
+            raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
+        self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)
+        stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
+        if s.start < 0 or s.start >= stop:
+            raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} "
+                             f"({self.clip.frame_count} frames)")
+        self.start, self.stop = s.start, stop
+        self.total = stop - s.start
+        self.depth = open_map_sequence(s.depth, kind="disparity", scale=s.depth_scale, offset=s.depth_offset)
+        if len(self.depth) > 1 and len(self.depth) < stop:
+            raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "
+                             f"{s.input} needs {stop}: supply one map per frame (or a single map)")
+        self.hdr = open_map_sequence(s.hdr, kind="hdr") if s.hdr is not None else None
+        self.track: FocusTrack | None = s.track_data
+        if self.track is None and s.track is not None:
+            self.track = load_track(s.track)
+        self.renderer = FastRenderer(spec=s.spec, naive=s.naive, max_step=s.max_step, min_layers=s.min_layers)
+        self.done = 0
+        self.text = f"rendering {self.total} frames of {self.clip.path.name}"
+        self._frames: Iterator[np.ndarray] | None = None
+        self._writers: list = []
+        self._focus: np.ndarray | None = None
+        self._aperture: np.ndarray | None = None
+        self._finished = False
+
+    @property
+    def progress(self) -> float:
+        """Fraction of frames rendered, 0..1."""
+        return self.done / self.total if self.total else 1.0
+
+    def _open(self) -> None:
+        s = self.settings
+        size = (self.clip.width, self.clip.height)
+        first_d = self.depth.get(self.start if len(self.depth) > 1 else 0, size=size)
+        if self.track is not None:
+            self._focus, self._aperture = resolve_track(self.track, self.total, start=self.start)
+        else:
+            focus = center_focus(first_d) if s.focus is None else float(s.focus)
+            self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total, start=self.start)
+        self._frames = iter_frames(s.input, start=self.start, stop=self.stop)
+        audio = s.input if (s.keep_audio and self.clip.has_audio) else None
+        for out in s.outputs:
+            out = Path(out)
+            if out.suffix.lower() in VIDEO_SUFFIXES:
+                w = VideoWriter(out, fps=self.clip.fps, size=size, audio_from=audio, audio_start=self.start / self.clip.fps)
+            elif "%" in out.name or out.suffix.lower() in (".png", ".exr", ".jpg", ".tif", ".tiff"):
+                w = ImageSequenceWriter(out.parent, pattern=out.name, start=self.start + 1)
+            else:
+                w = ImageSequenceWriter(out, pattern="frame_%05d.png", start=self.start + 1)
+            self._writers.append(w.__enter__())
+
+    def step(self) -> bool:
+        """Render and write the next frame; returns False once everything is written."""
+        if self._finished:
+            return False
+        try:
+            if self._frames is None:
+                self._open()
+            frame = next(self._frames, None)
+            if frame is None:
+                if self.done < self.total:
+                    raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
+                self._close()
+                return False
+            self._write(self._render(frame, self.done))
+            self.done += 1
+            if self.done == self.total:
+                self._close()
+                return False
+            return True
+        except BaseException:
+            self.abort()
+            raise
+
+    def _render(self, frame: np.ndarray, k: int) -> np.ndarray:
+        size = (frame.shape[1], frame.shape[0])
+        t = self.start + k
+        disparity = self.depth.get(t if len(self.depth) > 1 else 0, size=size)
+        exponent = None
+        if self.hdr is not None:
+            exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=size)
+            if exponent.ndim == 2:
+                exponent = exponent[..., None]
+        radiance = hdr_radiance(srgb_to_linear(to_float01(frame)), exponent)
+        return self.renderer.render_linear(radiance, disparity, float(self._focus[k]), float(self._aperture[k]))
+
+    def _write(self, linear: np.ndarray) -> None:
+        srgb8 = None
+        for w in self._writers:
+            if isinstance(w, ImageSequenceWriter) and w.pattern.lower().endswith(".exr"):
+                w.write(linear.astype(np.float32))
+            else:
+                if srgb8 is None:
+                    srgb8 = to_uint8(linear_to_srgb(linear))
+                w.write(srgb8)
+
+    def _close(self) -> None:
+        for w in self._writers:
+            w.__exit__(None, None, None)
+        self._writers = []
+        self._finished = True
+        self.text = f"rendered {self.done} frames"
+
+    def abort(self) -> None:
+        """Stop and remove partial outputs; earlier results at the output paths survive."""
+        for w in self._writers:
+            try:
+                w.__exit__(Cancelled, Cancelled("aborted"), None)
+            except Exception:  # noqa: BLE001 - cleanup must visit every writer
+                log.exception("cleaning up %s failed", w)
+        self._writers = []
+        self._finished = True
+
+    def cancel(self) -> None:
+        """User cancel: same as abort, with a status text."""
+        self.abort()
+        self.text = f"cancelled after {self.done} of {self.total} frames"
+
+    def run(self, progress: bool = True) -> None:
+        """Run to the end, with a tqdm progress bar when ``progress``."""
+        from tqdm import tqdm
+
+        with tqdm(total=self.total, unit="frame", disable=not progress, desc="render") as bar:
+            while self.step():
+                bar.update(1)
+            bar.update(self.total - bar.n)
