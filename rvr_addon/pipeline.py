@@ -118,6 +118,32 @@ def _replace_dir(new: Path, old: Path) -> None:
     shutil.rmtree(aside, ignore_errors=True)
 
 
+IMAGE_SUFFIXES = (".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+def sequence_writer(out: Path, start: int = 1) -> ImageSequenceWriter:
+    """Writer for an image-sequence output: a folder (PNG frames) or ``folder/name_%05d.ext``.
+
+    The folder is replaced as a whole when the render completes, so it must be the render's
+    own: a folder holding anything but frames of this pattern is refused (nothing is lost).
+    """
+    if "%" in out.name or out.suffix.lower() in IMAGE_SUFFIXES:
+        directory, pattern = out.parent, out.name
+        if "%" not in pattern:
+            raise InputError(f"image output {out} needs a frame number field, e.g. {out.stem}_%05d{out.suffix}")
+    else:
+        directory, pattern = out, "frame_%05d.png"
+    if directory.is_dir():
+        import re
+
+        rx = re.compile(re.sub(r"%0?(\d*)d", r"\\d+", re.escape(pattern).replace("\\%", "%")) + "$")
+        foreign = [p.name for p in directory.iterdir() if not rx.match(p.name)]
+        if foreign:
+            raise InputError(f"output folder {directory} holds other files ({', '.join(sorted(foreign)[:3])}...); "
+                             "image sequences replace their folder as a whole: choose a new or empty folder")
+    return ImageSequenceWriter(directory, pattern=pattern, start=start)
+
+
 def center_focus(disparity: np.ndarray, fraction: float = 0.2) -> float:
     """Median disparity of the central box (``fraction`` of each side): a default focus."""
     h, w = disparity.shape
@@ -179,10 +205,8 @@ class RenderJob:
             out = Path(out)
             if out.suffix.lower() in VIDEO_SUFFIXES:
                 w = VideoWriter(out, fps=self.clip.fps, size=size, audio_from=audio, audio_start=self.start / self.clip.fps)
-            elif "%" in out.name or out.suffix.lower() in (".png", ".exr", ".jpg", ".tif", ".tiff"):
-                w = ImageSequenceWriter(out.parent, pattern=out.name, start=self.start + 1)
             else:
-                w = ImageSequenceWriter(out, pattern="frame_%05d.png", start=self.start + 1)
+                w = sequence_writer(out, start=self.start + 1)
             self._writers.append(w.__enter__())
 
     def step(self) -> bool:

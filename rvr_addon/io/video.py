@@ -1,9 +1,12 @@
 """Video and image-sequence input: probe a clip, stream its frames as uint8 RGB.
 
-A clip is either a container OpenCV's FFmpeg backend decodes (mp4, mov, mkv, ...) or an image
-sequence given as a folder (natural order: frame2 < frame10), a glob pattern ("shots/*.png")
-or a printf pattern ("frames/f_%04d.png"). Display rotation metadata of phone videos is
-applied, so frames come out upright. Frames are streamed, never held as a whole clip.
+A clip is either a video file FFmpeg decodes (mp4, mov, mkv, ...) or an image sequence given
+as a folder (natural order: frame2 < frame10), a glob pattern ("shots/*.png") or a printf
+pattern ("frames/f_%04d.png"). Videos are decoded by the ffmpeg bundled with imageio-ffmpeg
+through a pipe, not by cv2.VideoCapture: it converts YUV with the matrix the file is tagged
+with (OpenCV always uses BT.601, which shifts the colours of BT.709 HD video by ~13 levels)
+and applies display rotation, so phone frames come out upright. Image files are read with
+OpenCV. Frames are streamed, never held as a whole clip.
 """
 from __future__ import annotations
 
@@ -126,7 +129,9 @@ def read_image_rgb8(path: Path) -> np.ndarray:
 
     if path.suffix.lower() == ".exr":
         return _read_exr_rgb8(path)
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    # JPEGs through IMREAD_COLOR so their EXIF orientation is applied (IMREAD_UNCHANGED ignores it).
+    flags = cv2.IMREAD_COLOR if path.suffix.lower() in (".jpg", ".jpeg") else cv2.IMREAD_UNCHANGED
+    image = cv2.imread(str(path), flags)
     if image is None or image.size == 0:
         raise VideoOpenError(
             f"Cannot read image '{path}': the file is missing, corrupt or not an image format OpenCV reads. "
@@ -238,16 +243,29 @@ def _read_ppm(stream, video: Path) -> np.ndarray | None:
     return np.frombuffer(data, dtype=np.uint8).reshape(height, width, 3)
 
 
-def _size_change(log_file, fps: float) -> tuple[str, str, float | None] | None:
-    """(old size, new size, time in s) if ffmpeg logged a mid-stream resolution change."""
-    log_file.seek(0)
-    text = log_file.read().decode("utf-8", "replace")
-    for match in _SIZE_CHANGE.finditer(text):
-        old, new = (match.group(1), match.group(2)), (match.group(3), match.group(4))
-        if old != new:
-            t = None if match.group(5) == "NOPTS" else float(match.group(5))
-            return f"{old[0]}x{old[1]}", f"{new[0]}x{new[1]}", t
-    return None
+class _LogWatch:
+    """Scan ffmpeg's log file incrementally for a mid-stream resolution change."""
+
+    def __init__(self, log_file):
+        self.file = log_file
+        self.pos = 0
+        self.partial = b""
+
+    def size_change(self) -> tuple[str, str, float | None] | None:
+        """(old size, new size, time in s) once ffmpeg has logged a resolution change, else None."""
+        end = os.fstat(self.file.fileno()).st_size
+        if end == self.pos:
+            return None
+        self.file.seek(self.pos)
+        chunk = self.partial + self.file.read(end - self.pos)
+        self.pos = end
+        lines, _, self.partial = chunk.rpartition(b"\n")
+        for match in _SIZE_CHANGE.finditer(lines.decode("utf-8", "replace")):
+            old, new = (match.group(1), match.group(2)), (match.group(3), match.group(4))
+            if old != new:
+                t = None if match.group(5) == "NOPTS" else float(match.group(5))
+                return f"{old[0]}x{old[1]}", f"{new[0]}x{new[1]}", t
+        return None
 
 
 def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
@@ -265,24 +283,24 @@ def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarra
     if stop is not None:
         cmd += ["-frames:v", str(stop - start)]
     cmd += ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
-    fps = _container_fps(video) or DEFAULT_SEQUENCE_FPS
     with tempfile.TemporaryFile() as log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
+        watch = _LogWatch(log_file)
         try:
-            index, want, log_size = start, None, 0
+            index, want = start, None
             while True:
                 frame = _read_ppm(proc.stdout, video)
-                size = os.fstat(log_file.fileno()).st_size
-                if size != log_size or frame is None:
-                    log_size = size
-                    change = _size_change(log_file, fps)
-                    if change is not None:
-                        old, new, t = change
-                        at = f"frame {round(t * fps)} (t={t:.3f} s)" if t is not None else f"after frame {index - 1}"
-                        raise InputError(
-                            f"Video '{video}' changes resolution from {old} to {new} at {at}; a clip must keep one "
-                            "resolution. Re-export it at a fixed size (e.g. ffmpeg -vf scale=W:H) or split it."
-                        )
+                if frame is None:
+                    proc.wait()  # flush the whole log before the last scan
+                change = watch.size_change()
+                if change is not None:
+                    old, new, t = change
+                    fps = _container_fps(video) or DEFAULT_SEQUENCE_FPS
+                    at = f"frame {round(t * fps)} (t={t:.3f} s)" if t is not None else f"after frame {index - 1}"
+                    raise InputError(
+                        f"Video '{video}' changes resolution from {old} to {new} at {at}; a clip must keep one "
+                        "resolution. Re-export it at a fixed size (e.g. ffmpeg -vf scale=W:H) or split it."
+                    )
                 if frame is None:
                     break
                 if want is None:
@@ -295,7 +313,7 @@ def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarra
             if proc.wait() != 0:
                 log_file.seek(0)
                 raise VideoOpenError(
-                    f"Decoding '{video}' failed after frame {index - 1}; the file may be corrupt or truncated. "
+                    f"Decoding '{video}' failed after {index - start} frames (from frame {start}); the file may be corrupt or truncated. "
                     f"Re-export or re-copy it.\nffmpeg said:\n{_tail(log_file.read().decode('utf-8', 'replace'))}"
                 )
         finally:

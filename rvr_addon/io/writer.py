@@ -102,6 +102,14 @@ class VideoWriter:
                 "-color_range", "tv", "-movflags", "+faststart", "-f", "mp4", str(self._tmp)]
         return cmd
 
+    def __del__(self) -> None:
+        # A writer dropped without close() must not leave ffmpeg running or a temp file behind.
+        if not getattr(self, "_closed", True):
+            try:
+                self.abort()
+            except Exception:  # pragma: no cover - interpreter shutdown
+                pass
+
     def __enter__(self) -> "VideoWriter":
         return self
 
@@ -218,6 +226,13 @@ class ImageSequenceWriter:
         self.frames_written = 0
         self._shape: tuple[int, ...] | None = None
         self._closed = False
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            try:
+                self.abort()
+            except Exception:  # pragma: no cover - interpreter shutdown
+                pass
 
     def __enter__(self) -> "ImageSequenceWriter":
         return self

@@ -154,6 +154,15 @@ def test_image_formats_become_rgb8(tmp_path, stored, expected):
     assert tuple(frame[0, 0]) == expected
 
 
+def test_exr_frames_are_srgb_encoded(tmp_path):
+    from rvr_addon.io.exr import write_exr
+
+    for i, value in enumerate((0.5, 0.0031308, 2.0)):
+        write_exr(tmp_path / f"lin_{i}.exr", {c: np.full((4, 6), value, np.float32) for c in "RGB"})
+    frames = list(iter_frames(tmp_path / "lin_%d.exr"))
+    assert [int(f[0, 0, 0]) for f in frames] == [188, 10, 255]  # sRGB(0.5) = 0.7354; 2.0 is clipped
+
+
 def test_image_size_mismatch_names_frame_and_file(image_sequence):
     cv2.imwrite(str(image_sequence / "frame4.png"), np.zeros((10, 10, 3), np.uint8))
     with pytest.raises(InputError, match=r"Frame 3 of '.*frame4\.png' is 10x10 .* 64x48"):

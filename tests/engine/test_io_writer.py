@@ -262,3 +262,15 @@ def test_sequence_size_change_rejected(tmp_path):
 def test_bad_patterns(tmp_path, pattern):
     with pytest.raises(InputError, match="pattern"):
         ImageSequenceWriter(tmp_path / "out", pattern=pattern)
+
+
+def test_dropped_writers_leave_nothing_behind(tmp_path, image_frames):
+    import gc
+
+    video = VideoWriter(tmp_path / "v.mp4", 24, (64, 48))
+    video.write(frames(1)[0])
+    sequence = ImageSequenceWriter(tmp_path / "seq")
+    sequence.write(image_frames[0])
+    del video, sequence
+    gc.collect()
+    assert os.listdir(tmp_path) == []

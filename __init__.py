@@ -1,0 +1,37 @@
+"""RVR-LAAF Refocus: synthetic shallow depth of field for video strips (Blender extension).
+
+This file only wires the parts together: operators (and their properties), then panels, and
+the ``blender -c rvr ...`` command line. The engine, ``rvr_addon``, never imports bpy.
+Imports are relative: Blender imports this package as ``bl_ext.<repository>.rvr_laaf``.
+"""
+from __future__ import annotations
+
+import bpy
+
+from . import operators, panels
+
+_cli_handle = None
+
+
+def _cli(argv: list[str]) -> int:
+    """``blender -c rvr render ...``: the engine's ``rvr`` command line."""
+    from .rvr_addon import cli
+
+    return cli.main(list(argv))
+
+
+def register() -> None:
+    global _cli_handle
+    operators.register()
+    panels.register()
+    if hasattr(bpy.utils, "register_cli_command"):  # Blender 4.2+
+        _cli_handle = bpy.utils.register_cli_command("rvr", _cli)
+
+
+def unregister() -> None:
+    global _cli_handle
+    if _cli_handle is not None:
+        bpy.utils.unregister_cli_command(_cli_handle)
+        _cli_handle = None
+    panels.unregister()
+    operators.unregister()

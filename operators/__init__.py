@@ -1,0 +1,20 @@
+"""Blender operators, properties and F-curve helpers of RVR-LAAF (Blender state only).
+
+Registered in order by :func:`register` (properties first: the operators read them) and
+unregistered in reverse.
+"""
+from __future__ import annotations
+
+from . import fcurves, ops_render, props
+
+_modules = (props, fcurves, ops_render)
+
+
+def register() -> None:
+    for module in _modules:
+        module.register()
+
+
+def unregister() -> None:
+    for module in reversed(_modules):
+        module.unregister()

@@ -1,0 +1,18 @@
+#!/usr/bin/env bash
+# Create .venv (Python 3.11) with every pinned dependency and the project in editable mode.
+# Usage: scripts/setup.sh            (idempotent; re-run after pulling)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3.11}
+command -v "$PY" >/dev/null || PY=python3
+"$PY" - <<'PYCHECK'
+import sys
+if sys.version_info[:2] != (3, 11):
+    sys.exit(f"RVR-LAAF needs Python 3.11 (bpy 5.0.1 is built for it); found {sys.version.split()[0]}. "
+             "Set PYTHON=/path/to/python3.11")
+PYCHECK
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+.venv/bin/python -m pip install --quiet --upgrade "pip>=24"
+.venv/bin/python -m pip install --quiet -r requirements.txt -c constraints.txt
+.venv/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
+.venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"
