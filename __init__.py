@@ -17,7 +17,10 @@ def _cli(argv: list[str]) -> int:
     """``blender -c rvr render ...``: the engine's ``rvr`` command line."""
     from .rvr_addon import cli
 
-    return cli.main(list(argv))
+    try:
+        return cli.main(list(argv))
+    except SystemExit as ex:  # argparse's --help / usage errors: an exit status, not Blender's exit
+        return ex.code if isinstance(ex.code, int) else (0 if ex.code is None else 1)
 
 
 def register() -> None:

@@ -398,7 +398,7 @@ def _build_scene(rng: np.random.Generator) -> tuple[dict, list[_Emitter]]:
     bpy.context.scene.collection.objects.link(key)
 
     sun_data = bpy.data.lights.new("sun", type="SUN")
-    sun_data.energy = 1.6
+    sun_data.energy = 2.2
     sun_data.angle = math.radians(4.0)
     sun_data.color = (1.0, 0.8, 0.6)
     sun = bpy.data.objects.new("sun", sun_data)
@@ -408,7 +408,7 @@ def _build_scene(rng: np.random.Generator) -> tuple[dict, list[_Emitter]]:
     world = bpy.data.worlds.new("dusk")
     bg = world.node_tree.nodes["Background"]
     bg.inputs["Color"].default_value = (0.30, 0.38, 0.55, 1.0)
-    bg.inputs["Strength"].default_value = 0.55
+    bg.inputs["Strength"].default_value = 0.8
     bpy.context.scene.world = world
     return objs, emitters
 

@@ -81,6 +81,7 @@ class FastRenderer:
         inv_norm = cv2.divide(1.0, matte_normaliser(u, plan)) if self.naive else None
         active = self._active_layers(u, j_lo, j_hi)
         h, w = u.shape
+        radiance1 = cv2.merge((*cv2.split(radiance.astype(np.float32, copy=False)), np.ones((h, w), np.float32)))
         tasks = []
         for j in plan.indices:  # back to front
             tiles = active[int(j) - j_lo]
@@ -92,7 +93,7 @@ class FastRenderer:
 
         def blur(task):
             j, kernel, box, core = task
-            return box, blur_layer_box(radiance, u, inv_norm, j, j_hi, kernel, box, core)
+            return box, blur_layer_box(radiance1, u, inv_norm, j, j_hi, kernel, box, core)
 
         # blurs run ahead on worker threads (OpenCV's DFT filter is single-threaded and
         # releases the GIL); compositing stays in back-to-front order on this thread
@@ -225,7 +226,7 @@ def layer_boxes(tiles: np.ndarray, tile: int, half: int, shape: tuple[int, int])
 
 
 def blur_layer_box(
-    radiance: np.ndarray,
+    radiance1: np.ndarray,
     u: np.ndarray,
     inv_norm: np.ndarray | None,
     j: float,
@@ -236,6 +237,7 @@ def blur_layer_box(
 ) -> np.ndarray:
     """Blurred premultiplied [R, G, B, alpha] (h, w, 4) of layer j over ``box``.
 
+    radiance1: (H, W, 4) float32 [R, G, B, 1] linear radiance with a channel of ones.
     alpha is the layer's over-compositing alpha (model step 3), or, when ``inv_norm`` (the
     reciprocal matte normaliser) is given, the normalised matte itself (naive variant).
     Sources are the pixels of ``core`` (alpha is zero elsewhere in the box); ``kernel`` is
@@ -254,9 +256,8 @@ def blur_layer_box(
                 break
             cv2.add(total, _matte_cv(uc, j + k), dst=total)
         alpha = cv2.divide(g, cv2.max(total, 1e-30))
-    src = np.zeros((y1 - y0, x1 - x0, 4), dtype=np.float32)
-    rc = radiance[cy0:cy1, cx0:cx1]
-    src[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] = cv2.merge((*cv2.split(cv2.multiply(rc, cv2.merge((alpha, alpha, alpha)))), alpha))
+    core_src = cv2.multiply(radiance1[cy0:cy1, cx0:cx1], cv2.merge((alpha, alpha, alpha, alpha)))
+    src = cv2.copyMakeBorder(core_src, cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1, cv2.BORDER_CONSTANT, value=0)
     if kernel.size > 1:
         src = cv2.filter2D(src, -1, kernel, borderType=cv2.BORDER_CONSTANT)
     return src

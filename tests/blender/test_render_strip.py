@@ -1,0 +1,177 @@
+"""rvr.render_strip on a generated image-sequence strip: result strip, video, focus track, and
+that a failure leaves the scene and the disk as they were."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+bpy = pytest.importorskip("bpy")
+cv2 = pytest.importorskip("cv2")
+
+W, H, N = 64, 36, 8
+START = 11  # scene frame of the strip's first frame
+KEYS = [(START + 1, 2.0), (START + 6, 12.0)]  # (scene frame, focus disparity)
+
+
+@pytest.fixture
+def clip(tmp_path):
+    """8 frames of 64x36 PNG (noise) and one .npy disparity map per frame (left-right ramp 0..16)."""
+    frames, depth = tmp_path / "frames", tmp_path / "depth"
+    frames.mkdir()
+    depth.mkdir()
+    rng = np.random.default_rng(0)
+    ramp = np.tile(np.linspace(0.0, 16.0, W, dtype=np.float32), (H, 1))
+    for i in range(N):
+        cv2.imwrite(str(frames / f"f_{i:04d}.png"), rng.integers(0, 256, (H, W, 3), dtype=np.uint8))
+        np.save(depth / f"d_{i:04d}.npy", ramp)
+    return frames, depth
+
+
+@pytest.fixture
+def image_strip(registered, factory_scene, clip, tmp_path):
+    frames, depth = clip
+    editor = factory_scene.sequence_editor_create()
+    strip = editor.strips.new_image("Clip", str(frames / "f_0000.png"), channel=2, frame_start=START)
+    for i in range(1, N):
+        strip.elements.append(f"f_{i:04d}.png")
+    editor.active_strip = strip
+    strip.rvr.depth_path = str(depth)
+    strip.rvr.output_dir = str(tmp_path / "renders")
+    return strip
+
+
+def _strip_state(scene):
+    return sorted((s.name, s.type, s.channel, s.frame_final_start, s.frame_final_end)
+                  for s in scene.sequence_editor.strips_all)
+
+
+def _keys(fcurve):
+    return [tuple(k.co) for k in fcurve.keyframe_points]
+
+
+class _OperatorStub:
+    """Stands in for the operator instance to call execute() directly and see its reports."""
+
+    def __init__(self):
+        self.reports = []
+
+    def report(self, level, message):
+        self.reports.append((set(level), message))
+
+    def __getattr__(self, name):  # _prepare, _apply: the operator's own methods
+        from rvr_laaf.operators.ops_render import RVR_OT_render_strip
+
+        return getattr(RVR_OT_render_strip, name).__get__(self)
+
+
+def _decode(path):
+    cap = cv2.VideoCapture(str(path))
+    frames = []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame)
+    cap.release()
+    return frames
+
+
+def test_render_strip_adds_result_strip(registered, factory_scene, image_strip, tmp_path):
+    fcurves = registered.operators.fcurves
+    compat = registered.operators.compat
+    strip = image_strip
+    fc = fcurves.write_keyframes(strip, "focus_disparity", KEYS, interpolation="LINEAR")
+
+    path = 'sequence_editor.strips_all["Clip"].rvr.focus_disparity'
+    assert fc.data_path == path
+    assert fcurves.data_path(strip, "focus_disparity") == path
+    assert compat.fcurve_find(factory_scene, path) == fc
+    assert fcurves.find_fcurve(strip, "aperture") is None
+    keys_before = _keys(fc)
+    assert keys_before == [(float(f), float(v)) for f, v in KEYS]
+
+    # the sampled track: linear between the keys, held outside; the static aperture
+    scene_frames = np.arange(START, START + N)
+    track = fcurves.sample_track(strip, scene_frames, np.arange(N))
+    expected = np.interp(scene_frames, [k[0] for k in KEYS], [k[1] for k in KEYS])
+    np.testing.assert_allclose(track.focus, expected, atol=1e-5)
+    np.testing.assert_array_equal(track.frames, np.arange(N))
+    np.testing.assert_allclose(track.aperture, 1.0)
+    # and the animation system agrees with the sampling
+    factory_scene.frame_set(START + 3)
+    assert strip.rvr.focus_disparity == pytest.approx(expected[3], abs=1e-5)
+
+    state_before = _strip_state(factory_scene)
+    assert bpy.ops.rvr.render_strip("EXEC_DEFAULT") == {"FINISHED"}
+
+    result = factory_scene.sequence_editor.strips_all["Clip [RVR]"]
+    assert result.type == "MOVIE"
+    assert result.channel == strip.channel + 1
+    assert (result.frame_final_start, result.frame_final_end) == (strip.frame_final_start, strip.frame_final_end)
+    assert result.frame_duration == N
+    assert not [s for s in factory_scene.sequence_editor.strips_all if s.type == "SOUND"]
+    out = tmp_path / "renders" / "Clip.mp4"
+    assert bpy.path.abspath(result.filepath) == str(out)
+    frames = _decode(out)
+    assert len(frames) == N and frames[0].shape == (H, W, 3)
+    assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no temp files left
+
+    # the source strip and its F-curve are unchanged
+    assert [s for s in _strip_state(factory_scene) if s[0] != "Clip [RVR]"] == state_before
+    fc = fcurves.find_fcurve(factory_scene.sequence_editor.strips_all["Clip"], "focus_disparity")
+    assert _keys(fc) == keys_before
+
+    # rendering again replaces the result strip (same name, same place), no duplicate
+    assert bpy.ops.rvr.render_strip("EXEC_DEFAULT") == {"FINISHED"}
+    results = [s for s in factory_scene.sequence_editor.strips_all if s.name.startswith("Clip [RVR]")]
+    assert [(s.name, s.channel) for s in results] == [("Clip [RVR]", strip.channel + 1)]
+
+
+def test_render_strip_trimmed_strip(registered, factory_scene, image_strip, tmp_path):
+    """Trimmed handles: only the visible frames are rendered and the result spans them."""
+    strip = image_strip
+    strip.frame_offset_start = 2
+    strip.frame_offset_end = 1
+    span = registered.operators.ops_render.plan_render(factory_scene, strip).span
+    assert (span.scene_start, span.scene_stop, span.clip_start) == (START + 2, START + N - 1, 2)
+    assert bpy.ops.rvr.render_strip("EXEC_DEFAULT") == {"FINISHED"}
+    result = factory_scene.sequence_editor.strips_all["Clip [RVR]"]
+    assert (result.frame_final_start, result.frame_final_end) == (START + 2, START + N - 1)
+    assert len(_decode(tmp_path / "renders" / "Clip.mp4")) == N - 3
+
+
+def test_render_strip_bad_depth_changes_nothing(registered, factory_scene, image_strip, tmp_path):
+    fcurves = registered.operators.fcurves
+    strip = image_strip
+    fc = fcurves.write_keyframes(strip, "focus_disparity", KEYS, interpolation="LINEAR")
+    keys_before = _keys(fc)
+    state_before = _strip_state(factory_scene)
+    strip.rvr.depth_path = str(tmp_path / "no_such_depth")
+
+    # a script sees the operator's ERROR report as a RuntimeError naming the path
+    with pytest.raises(RuntimeError, match="no_such_depth"):
+        bpy.ops.rvr.render_strip("EXEC_DEFAULT")
+    # ... because execute() reported it and returned CANCELLED
+    stub = _OperatorStub()
+    assert registered.operators.ops_render.RVR_OT_render_strip.execute(stub, bpy.context) == {"CANCELLED"}
+    assert [level for level, _ in stub.reports] == [{"ERROR"}] and "no_such_depth" in stub.reports[0][1]
+
+    assert _strip_state(factory_scene) == state_before
+    assert "Clip [RVR]" not in factory_scene.sequence_editor.strips_all
+    assert _keys(fcurves.find_fcurve(strip, "focus_disparity")) == keys_before
+    renders = tmp_path / "renders"
+    assert not renders.exists() or not any(renders.iterdir())
+
+
+def test_frame_span_and_channel_helpers(registered):
+    ops = registered.operators.ops_render
+    # holds on both sides: only the content frames are rendered, the span keeps the holds
+    span = ops.frame_span(frame_start=10, final_start=8, final_end=20, duration=8, content_offset=3)
+    assert (span.scene_start, span.scene_stop, span.clip_start, span.count) == (10, 18, 3, 8)
+    assert (span.final_start, span.final_end) == (8, 20)
+    with pytest.raises(registered.rvr_addon.errors.InputError):
+        ops.frame_span(frame_start=10, final_start=18, final_end=20, duration=8, content_offset=0)
+    occupied = [(3, 0, 10), (4, 5, 15), (5, 20, 30)]
+    assert ops.first_free_channel(occupied, above=2, start=0, end=10) == 5
+    assert ops.first_free_channel(occupied, above=2, start=10, end=12) == 3
+    assert ops.safe_file_name("a/b:c") == "a_b_c"
