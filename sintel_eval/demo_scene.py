@@ -255,7 +255,7 @@ def _materials(rng: np.random.Generator) -> dict:
     m = {}
 
     skin = _Mat("skin")
-    n = skin.node("ShaderNodeTexNoise", Scale=25.0, Detail=6.0, Roughness=0.6)
+    n = skin.node("ShaderNodeTexNoise", Scale=25.0, Detail=4.0, Roughness=0.6)
     skin.link(skin.coords("Object", offset=tuple(rng.uniform(0, 100, 3))), n.inputs["Vector"])
     v = skin.node("ShaderNodeTexVoronoi", Scale=90.0)
     skin.link(skin.coords("Object"), v.inputs["Vector"])
@@ -268,7 +268,7 @@ def _materials(rng: np.random.Generator) -> dict:
                           roughness=0.45)
 
     hair = _Mat("hair")
-    n = hair.node("ShaderNodeTexNoise", Scale=30.0, Detail=10.0, Roughness=0.7)
+    n = hair.node("ShaderNodeTexNoise", Scale=30.0, Detail=5.0, Roughness=0.7)
     hair.link(hair.coords("Object", scale=(6.0, 6.0, 0.6)), n.inputs["Vector"])
     m["hair"] = hair.base(hair.ramp(n.outputs["Fac"], [(0.3, (0.03, 0.015, 0.01)), (0.7, (0.28, 0.14, 0.06))]),
                           roughness=0.35)
@@ -322,7 +322,7 @@ def _materials(rng: np.random.Generator) -> dict:
                           roughness=0.5)
 
     marble = _Mat("marble")
-    n = marble.node("ShaderNodeTexNoise", Scale=4.0, Detail=12.0, Roughness=0.65, Distortion=3.0)
+    n = marble.node("ShaderNodeTexNoise", Scale=4.0, Detail=6.0, Roughness=0.65, Distortion=3.0)
     marble.link(marble.coords("Object", offset=tuple(rng.uniform(0, 50, 3))), n.inputs["Vector"])
     m["marble"] = marble.base(marble.ramp(n.outputs["Fac"], [(0.40, (0.12, 0.22, 0.35)), (0.60, (0.70, 0.75, 0.80))]),
                               roughness=0.3)

@@ -26,9 +26,12 @@ def _all(state: dict, value: bool) -> bool:
 
 def test_register_round_trip_twice(addon_package, factory_scene):
     assert _all(_registered_state(), False)
+    load_handlers = len(bpy.app.handlers.load_post)
     for _ in range(2):
         addon_package.register()
         try:
+            assert len(bpy.app.handlers.load_post) == load_handlers + 1
+            assert addon_package._cli_handle is not None
             state = _registered_state()
             assert _all(state, True), state
             panel = bpy.types.RVR_PT_focus
@@ -42,6 +45,7 @@ def test_register_round_trip_twice(addon_package, factory_scene):
         finally:
             addon_package.unregister()
         assert _all(_registered_state(), False), _registered_state()
+        assert len(bpy.app.handlers.load_post) == load_handlers and addon_package._cli_handle is None
 
 
 def test_strip_properties_defaults(registered, factory_scene, tmp_path):

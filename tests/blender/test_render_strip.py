@@ -115,6 +115,11 @@ def test_render_strip_adds_result_strip(registered, factory_scene, image_strip, 
     frames = _decode(out)
     assert len(frames) == N and frames[0].shape == (H, W, 3)
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no temp files left
+    # the focus track was used: the far right (D = 16) is blurred with r = 14 px at the first
+    # frame (focus 2) and with r = 4 px at the last (focus 12), so it keeps more detail there
+    right = (slice(8, H - 8), slice(W - 8, W))
+    detail = [float(cv2.Laplacian(f[right].astype(np.float32), cv2.CV_32F).var()) for f in (frames[0], frames[-1])]
+    assert detail[1] > 2.0 * detail[0], detail
 
     # the source strip and its F-curve are unchanged
     assert [s for s in _strip_state(factory_scene) if s[0] != "Clip [RVR]"] == state_before
@@ -175,3 +180,64 @@ def test_frame_span_and_channel_helpers(registered):
     assert ops.first_free_channel(occupied, above=2, start=0, end=10) == 5
     assert ops.first_free_channel(occupied, above=2, start=10, end=12) == 3
     assert ops.safe_file_name("a/b:c") == "a_b_c"
+
+
+class _Event:
+    def __init__(self, kind):
+        self.type = kind
+        self.value = "NOTHING"
+
+
+def _modal_stub(registered, context):
+    """An operator stand-in prepared as invoke() would (without the window timer)."""
+    ops = registered.operators.ops_render
+    stub = _OperatorStub()
+    stub._timer = None
+    stub._plan, stub._job = ops.RVR_OT_render_strip._prepare(stub, context)
+    context.window_manager.rvr_job_status = "RUNNING"
+    return stub, ops.RVR_OT_render_strip.modal
+
+
+def test_modal_steps_on_timer_and_finishes(registered, factory_scene, image_strip, tmp_path):
+    stub, modal = _modal_stub(registered, bpy.context)
+    wm = bpy.context.window_manager
+    assert modal(stub, bpy.context, _Event("MOUSEMOVE")) == {"PASS_THROUGH"}
+    assert stub._job.done == 0  # only timer events step the job
+    results = []
+    for _ in range(100):
+        results.append(modal(stub, bpy.context, _Event("TIMER")))
+        if results[-1] != {"PASS_THROUGH"}:
+            break
+        assert wm.rvr_job_status == "RUNNING" and 0.0 < wm.rvr_job_progress <= 100.0
+    assert results[-1] == {"FINISHED"}
+    assert wm.rvr_job_status == "IDLE" and stub._job is None
+    assert "Clip [RVR]" in factory_scene.sequence_editor.strips_all
+    assert len(_decode(tmp_path / "renders" / "Clip.mp4")) == N
+
+
+@pytest.mark.parametrize("how", ["esc", "cancel_operator"])
+def test_modal_cancel_changes_nothing(registered, factory_scene, image_strip, tmp_path, how, monkeypatch):
+    monkeypatch.setattr(registered.operators.ops_render, "STEP_BUDGET_S", 0.0)  # one frame per timer tick
+    out = tmp_path / "renders" / "Clip.mp4"
+    out.parent.mkdir()
+    out.write_bytes(b"earlier render")
+    state_before = _strip_state(factory_scene)
+    stub, modal = _modal_stub(registered, bpy.context)
+    assert modal(stub, bpy.context, _Event("TIMER")) == {"PASS_THROUGH"}
+    assert stub._job.done == 1
+    if how == "esc":
+        result = modal(stub, bpy.context, _Event("ESC"))
+    else:
+        assert bpy.ops.rvr.cancel_job() == {"FINISHED"}
+        result = modal(stub, bpy.context, _Event("TIMER"))
+    assert result == {"CANCELLED"}
+    assert bpy.context.window_manager.rvr_job_status == "IDLE"
+    assert "cancelled" in bpy.context.window_manager.rvr_job_text
+    assert _strip_state(factory_scene) == state_before
+    assert out.read_bytes() == b"earlier render"  # the earlier result survives
+    assert [p.name for p in out.parent.iterdir()] == ["Clip.mp4"]  # no temp file left
+
+
+def test_invoke_in_background_runs_blocking(registered, factory_scene, image_strip):
+    assert bpy.ops.rvr.render_strip("INVOKE_DEFAULT") == {"FINISHED"}
+    assert "Clip [RVR]" in factory_scene.sequence_editor.strips_all

@@ -8,13 +8,14 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import CLIP_FRAMES, CLIP_H, CLIP_W, stream_kinds
 from rvr_addon.cli import main as rvr_main
 from rvr_addon.errors import InputError, VideoOpenError
 from rvr_addon.io.video import iter_frames
 from rvr_addon.pipeline import RenderJob, RenderSettings, exponent_from_radiance
 from rvr_addon.render.fast import FastRenderer
 from rvr_addon.color import srgb_to_linear, linear_to_srgb, to_float01
+
+CLIP_W, CLIP_H, CLIP_FRAMES = 64, 48, 12  # the size of tests/conftest.py's clips
 
 
 @pytest.fixture
@@ -39,13 +40,13 @@ def frames_dir(tmp_path):
     return d
 
 
-def test_video_in_mp4_out_keeps_audio_and_frame_count(clip_av, depth_dir, tmp_path, ffmpeg):
+def test_video_in_mp4_out_keeps_audio_and_frame_count(clip_av, depth_dir, tmp_path, stream_info):
     out = tmp_path / "out" / "refocus.mp4"
     job = RenderJob(RenderSettings(input=clip_av, depth=depth_dir, outputs=[out], focus=0.0, aperture=1.5))
     job.run(progress=False)
     assert job.progress == 1.0
     assert out.is_file()
-    kinds = stream_kinds(ffmpeg, out)
+    kinds = stream_info(out)
     assert "Audio:" in kinds and "Video: h264" in kinds
     frames = list(iter_frames(out))
     assert len(frames) == CLIP_FRAMES and frames[0].shape == (CLIP_H, CLIP_W, 3)
