@@ -305,14 +305,14 @@ def _materials(rng: np.random.Generator) -> dict:
     wall.link(b.outputs["Color"], rgba_in["A"])
     wall.link(paint, rgba_in["B"])
     result = next(s for s in mul.outputs if s.type == "RGBA")
-    m["wall"] = wall.base(result, roughness=0.9)
+    m["wall"] = wall.base(result, roughness=0.9, specular=0.0)  # matte: cheaper to shade
 
     floor = _Mat("floor")
     ck = floor.node("ShaderNodeTexChecker", Scale=1.0)
     floor.link(floor.coords("Object", scale=(1.2, 1.2, 1.2)), ck.inputs["Vector"])
     ck.inputs["Color1"].default_value = (0.30, 0.28, 0.25, 1.0)
     ck.inputs["Color2"].default_value = (0.12, 0.11, 0.10, 1.0)
-    m["floor"] = floor.base(ck.outputs["Color"], roughness=0.7)
+    m["floor"] = floor.base(ck.outputs["Color"], roughness=0.7, specular=0.0)
 
     wood = _Mat("wood")
     w = wood.node("ShaderNodeTexWave", Scale=3.0, Distortion=6.0, Detail=4.0, **{"Detail Scale": 2.0})

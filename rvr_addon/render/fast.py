@@ -24,6 +24,7 @@ from .model import (
     ALPHA_EPS,
     ALPHA_SPAN,
     LAMBDA,
+    MATTE_CUTOFF,
     MATTE_FLOOR,
     MATTE_OFFSETS,
     LayerPlan,
@@ -246,21 +247,35 @@ def blur_layer_box(
     y0, y1, x0, x1 = box
     cy0, cy1, cx0, cx1 = core
     uc = u[cy0:cy1, cx0:cx1]
-    g = _matte_cv(uc, j)
     if inv_norm is not None:
-        alpha = cv2.multiply(g, inv_norm[cy0:cy1, cx0:cx1])
+        alpha = cv2.multiply(_matte_cv(uc, j), inv_norm[cy0:cy1, cx0:cx1])
     else:
-        total = g.copy()
-        for k in range(1, ALPHA_SPAN):
-            if j + k > j_hi:
-                break
-            cv2.add(total, _matte_cv(uc, j + k), dst=total)
-        alpha = cv2.divide(g, cv2.max(total, 1e-30))
+        alpha = _alpha_cv(uc, j, j_hi)
     core_src = cv2.multiply(radiance1[cy0:cy1, cx0:cx1], cv2.merge((alpha, alpha, alpha, alpha)))
     src = cv2.copyMakeBorder(core_src, cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1, cv2.BORDER_CONSTANT, value=0)
     if kernel.size > 1:
         src = cv2.filter2D(src, -1, kernel, borderType=cv2.BORDER_CONSTANT)
     return src
+
+
+def _alpha_cv(u: np.ndarray, j: float, j_hi: float) -> np.ndarray:
+    """:func:`.model.layer_alpha` with OpenCV arithmetic and two exponentials instead of four.
+
+    With d = u - j, the Gaussians of layers j + i are e_i = exp(-LAMBDA (d - i)^2), and
+    e_{i+1} = e_i * exp(2 LAMBDA d) * exp(-LAMBDA (2 i + 1)).
+    """
+    # |d| >= cutoff has alpha 0 anyway; the clamp keeps exp(2 LAMBDA d) finite
+    d = np.clip(cv2.subtract(u, j), -MATTE_CUTOFF - 0.01, MATTE_CUTOFF + 0.01)
+    e = cv2.exp(cv2.multiply(d, d, scale=-LAMBDA))
+    x = cv2.exp(cv2.multiply(d, 2.0 * LAMBDA))
+    g0 = cv2.max(cv2.subtract(e, MATTE_FLOOR), 0.0)
+    total = g0.copy()
+    for i in range(ALPHA_SPAN - 1):
+        if j + i + 1 > j_hi:
+            break
+        e = cv2.multiply(e, x, scale=float(np.exp(-LAMBDA * (2 * i + 1))))
+        cv2.add(total, cv2.max(cv2.subtract(e, MATTE_FLOOR), 0.0), dst=total)
+    return cv2.divide(g0, cv2.max(total, 1e-30))
 
 
 def _matte_cv(u: np.ndarray, j: float) -> np.ndarray:

@@ -210,3 +210,13 @@ def test_bad_frame_inputs(case, match):
         focus = float("inf")
     with pytest.raises(InputError, match=match):
         FastRenderer().render_linear(rad, disp, focus, aperture)
+
+
+def test_fast_alpha_matches_the_model_far_from_the_layer():
+    """The two-exponential alpha of the fast path equals model.layer_alpha for any u."""
+    from rvr_addon.render.fast import _alpha_cv
+    from rvr_addon.render.model import layer_alpha
+
+    u = np.linspace(-40, 40, 8001, dtype=np.float32)[None, :].repeat(2, 0)
+    for j, j_hi in [(1.0, 8.0), (7.0, 8.0), (8.0, 8.0), (-30.0, 39.0)]:
+        assert np.abs(_alpha_cv(u, j, j_hi) - layer_alpha(u, j, j_hi)).max() < 1e-5
