@@ -17,8 +17,8 @@ stays fronto-parallel and its planar depth is known exactly on every frame.
 
 Cycles' Z pass for a perspective camera is the planar depth (distance along the view axis), not
 the radial distance to the camera centre: verified on a fronto-parallel plane, whose Z is
-constant to float precision out to the image corners, where a radial distance would be 3.6%
-larger with this lens (see tests/blender/test_demo_scene.py).
+constant to float precision out to the image corners, where a radial distance would be 2.1%
+larger with this lens (tests/blender/test_demo_scene.py checks it on the far wall every run).
 
 The notional "aperture scale 1" lens is the render camera's own 100 mm lens on a 36 mm wide
 sensor at f/1.0 focused at the subject's eye plane S_ref = 2.0 m; its exact thin-lens constant is
@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import tempfile
 import time
 from dataclasses import dataclass
@@ -41,6 +42,8 @@ from pathlib import Path
 import numpy as np
 
 from rvr_addon.errors import InputError, OutputError
+from rvr_addon.io.exr import read_exr, write_exr
+from rvr_addon.io.paths import temp_sibling
 
 try:  # sintel_eval may import bpy; give a clear message where it is missing.
     import bpy
@@ -353,8 +356,10 @@ def _build_scene(rng: np.random.Generator) -> tuple[dict, list[_Emitter]]:
     # Far backdrop: a fronto-parallel brick wall and a floor; no camera ray reaches the world.
     x0, x1 = WALL_X
     z0, z1 = WALL_Z
-    objs["wall"] = _quad("wall", [(x0, WALL_Y, z0), (x1, WALL_Y, z0), (x1, WALL_Y, z1), (x0, WALL_Y, z1)], mats["wall"])
-    objs["floor"] = _quad("floor", [(x0, -3.0, 0.0), (x1, -3.0, 0.0), (x1, WALL_Y, 0.0), (x0, WALL_Y, 0.0)], mats["floor"])
+    objs["wall"] = _quad("wall", [(x0, WALL_Y, z0), (x1, WALL_Y, z0), (x1, WALL_Y, z1), (x0, WALL_Y, z1)],
+                         mats["wall"])
+    objs["floor"] = _quad("floor", [(x0, -3.0, 0.0), (x1, -3.0, 0.0), (x1, WALL_Y, 0.0), (x0, WALL_Y, 0.0)],
+                          mats["floor"])
 
     # Foreground subject: head-and-shoulders bust from primitives, eye plane at S_REF_M.
     hx, hy, hz = HEAD_CENTRE
@@ -383,8 +388,8 @@ def _build_scene(rng: np.random.Generator) -> tuple[dict, list[_Emitter]]:
         sx = float(rng.uniform(-0.45, 0.55)) * sy / 3.5
         _cylinder(f"strand_{i}", 0.0025, float(rng.uniform(0.6, 1.1)), 4.0, (sx, sy), mats["wire"], segments=8)
 
-    # Small, very bright emitters in front of the wall (bokeh balls), placed where the static
-    # scene does not hide them from the camera (ray casts from the first and a late frame).
+    # Small, very bright emitters in front of the wall (bokeh balls), placed where the scene does
+    # not hide them from the camera (ray casts from frames 1, 24 and 48).
     emitters = _place_emitters(rng, objs["ball"])
 
     # Lights: a soft key on the subject, a dim warm sun for the set, a dusky sky for fill.
@@ -457,7 +462,7 @@ def _place_emitters(rng: np.random.Generator, ball) -> list[_Emitter]:
         rgb = np.clip(palette[rng.integers(len(palette))] * rng.uniform(0.9, 1.1, 3), 0.0, None)
         rgb = rgb / rgb.max()
         strength = float(rng.uniform(*EMITTER_STRENGTH))
-        if not visible(point, radius):
+        if not visible(point, radius) or any(_overlap(point, radius, e) for e in emitters):
             continue
         i = len(emitters)
         mat = _emission_material(f"emitter_{i}", tuple(float(c) for c in rgb), strength)
@@ -469,6 +474,18 @@ def _place_emitters(rng: np.random.Generator, ball) -> list[_Emitter]:
         depsgraph = bpy.context.evaluated_depsgraph_get()  # later lights must not hide behind this one
     ball.location = ball_location
     return emitters
+
+
+def _overlap(point, radius: float, other: _Emitter) -> bool:
+    """Would two emitters touch (with a margin) in the image on one of the checked frames?"""
+    for frame in EMITTER_CHECK_FRAMES:
+        cx, cy, cz = camera_position(frame)
+        a = np.array([(point[0] - cx) / (point[1] - cy), (point[2] - cz) / (point[1] - cy)])
+        q = other.position
+        b = np.array([(q[0] - cx) / (q[1] - cy), (q[2] - cz) / (q[1] - cy)])
+        if np.linalg.norm(a - b) < 2.0 * (radius / (point[1] - cy) + other.radius / (q[1] - cy)):
+            return True
+    return False
 
 
 def _aim(obj, target) -> None:
@@ -557,28 +574,16 @@ def _set_image_settings(scene, kind: str) -> None:
 
 def _read_multilayer(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Blender multilayer EXR -> (linear RGB float32 (H, W, 3), Z float32 (H, W))."""
-    import OpenEXR
-
-    with OpenEXR.File(str(path), separate_channels=True) as f:
-        chans = {name: ch.pixels for part in f.parts for name, ch in part.channels.items()}
+    chans = read_exr(path)
 
     def find(suffix):
         hits = [k for k in chans if k.endswith(suffix)]
         if not hits:
             raise OutputError(f"{path}: no channel '*{suffix}' in the render (channels: {sorted(chans)})")
-        return np.asarray(chans[hits[0]], dtype=np.float32)
+        return chans[hits[0]]
 
     rgb = np.dstack([find(f"Combined.{c}") for c in "RGB"])
     return rgb, find("Depth.Z")
-
-
-def _write_exr_rgb(path: Path, rgb: np.ndarray) -> None:
-    import OpenEXR
-
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    channels = {c: np.ascontiguousarray(rgb[..., i], dtype=np.float32) for i, c in enumerate("RGB")}
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(path))
 
 
 def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 216), samples: int = 16,
@@ -606,6 +611,7 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
     except OSError as exc:
         raise OutputError(f"{out}: cannot create the output folders ({exc}); choose a writable -o DIR") from exc
 
+    _remove_stale_frames(dirs, frames)
     from tqdm import tqdm
 
     bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -634,12 +640,13 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
     scene.frame_start, scene.frame_end = 1, frames
 
     k_px = camera_k_px(width)
+    radiance_cap = np.max([e.radiance for e in emitters], axis=0).astype(np.float32)
     subject_d: list[float] = []
     wall_d_measured: list[float] = []
     hdr_max = 0.0
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="rvr_demo_") as tmp:
-        tmp_exr = Path(tmp) / "render.exr"
+    with tempfile.TemporaryDirectory(prefix="rvr_demo_") as tmp_dir:
+        tmp_exr = Path(tmp_dir) / "render.exr"
         for frame in tqdm(range(1, frames + 1), desc="render demo", unit="frame", disable=not progress):
             scene.frame_set(frame)
             camera.location = camera_position(frame)
@@ -652,14 +659,17 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
             result.save_render(str(tmp_exr), scene=scene)
             _set_image_settings(scene, "png")
             png_path = dirs["frames"] / f"frame_{frame:05d}.png"
-            result.save_render(str(png_path), scene=scene)
+            _atomic(png_path, ".tmp.png", lambda tmp: result.save_render(str(tmp), scene=scene))
 
             rgb, z = _read_multilayer(tmp_exr)
             if rgb.shape[:2] != (height, width):
                 raise OutputError(f"{tmp_exr}: render is {rgb.shape[1]}x{rgb.shape[0]}, expected {width}x{height}")
-            _write_exr_rgb(dirs["hdr"] / f"frame_{frame:05d}.exr", rgb)
+            # No surface is brighter than the brightest emitter: OpenImageDenoise can overshoot
+            # on tiny very bright discs (up to ~30% at low sample counts); cut that ringing.
+            rgb = np.minimum(rgb, radiance_cap)
+            write_exr(dirs["hdr"] / f"frame_{frame:05d}.exr", {c: rgb[..., i] for i, c in enumerate("RGB")})
             disp = disparity_from_depth(z, k_px)
-            np.save(dirs["disparity"] / f"frame_{frame:05d}.npy", disp)
+            _atomic(dirs["disparity"] / f"frame_{frame:05d}.npy", ".tmp.npy", lambda tmp: np.save(tmp, disp))
             hdr_max = max(hdr_max, float(rgb.max()))
 
             col, row, _ = project(SUBJECT_POINT, frame, width, height)
@@ -692,7 +702,8 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
             "f_px": FOCAL_MM / SENSOR_WIDTH_MM * width,
         },
         "disparity_units": "px blur radius at aperture 1, native width",
-        "depth_source": "Cycles Z pass (planar depth along the view axis)",
+        "depth_source": "Cycles Z pass: planar depth along the view axis, one point sample per pixel "
+                        "(never averaged across an edge)",
         "subject_disparity": subject_d[0],
         "subject_disparity_per_frame": subject_d,
         "background_disparity": float(k_px * (1.0 / S_REF_M - 1.0 / wall_depth_1)),
@@ -700,15 +711,44 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
         "background_blur_fraction_of_width": float(k_px * (1.0 / S_REF_M - 1.0 / wall_depth_1)) / width,
         "emitter_radiance_max": max(max(e.radiance) for e in emitters),
         "hdr_max": hdr_max,
+        "hdr_clamp": [float(c) for c in radiance_cap],
         "emitters": [{"position_m": list(e.position), "radius_m": e.radius, "radiance": list(e.radiance)}
                      for e in emitters],
         "wall_plane_y_m": WALL_Y,
         "subject_point_m": list(SUBJECT_POINT),
         "camera_positions_m": [list(camera_position(f)) for f in range(1, frames + 1)],
-        "color": {"frames": "sRGB 8-bit, view transform Standard, look None, clipped",
-                  "hdr": "scene-linear Rec.709 radiance (Cycles Combined pass)"},
+        "color": {"frames": "sRGB 8-bit, view transform Standard, look None, clipped, no dither",
+                  "hdr": "scene-linear radiance (Cycles Combined pass, before the view transform)",
+                  "scene_linear": _working_space()},
         "render": {"engine": "CYCLES", "device": "CPU", "samples": samples, "denoiser": denoiser,
                    "blender": bpy.app.version_string, "seconds": elapsed},
     }
-    (out / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+    _atomic(out / "meta.json", ".tmp", lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
     return out
+
+
+def _atomic(path: Path, suffix: str, write) -> None:
+    """Call ``write(tmp)`` on a hidden sibling of ``path``, then rename it onto ``path``."""
+    tmp = temp_sibling(path, suffix)
+    try:
+        write(tmp)
+        if not tmp.is_file():
+            raise OSError("nothing was written")
+        os.replace(tmp, path)
+    except Exception as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write '{path}': {exc}; check free disk space and write permission") from exc
+
+
+def _working_space() -> str:
+    """The blend file's scene-linear working space (Blender 5.0+; Linear Rec.709 before)."""
+    colorspace = getattr(bpy.data, "colorspace", None)
+    return str(getattr(colorspace, "working_space", "") or "Linear Rec.709")
+
+
+def _remove_stale_frames(dirs: dict, frames: int) -> None:
+    """Drop frame files of an earlier, longer render in our own sub-folders (our naming only)."""
+    for d in dirs.values():
+        for path in d.glob("frame_[0-9][0-9][0-9][0-9][0-9].*"):
+            if path.suffix in (".png", ".exr", ".npy") and int(path.stem[6:]) > frames:
+                path.unlink()

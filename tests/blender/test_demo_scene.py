@@ -58,7 +58,7 @@ def test_files_shapes_and_meta(demo):
         disp = np.load(out / "disparity" / f"frame_{frame:05d}.npy")
         assert disp.shape == (H, W) and disp.dtype == np.float32 and np.isfinite(disp).all()
     assert not (out / "frames" / f"frame_{N + 1:05d}.png").exists()
-    assert not list(out.glob("*.exr")) and not list(out.glob("**/*.tmp"))
+    assert not list(out.glob("*.exr")) and not list(out.rglob(".*")), "temporary files left behind"
 
     # K is the exact thin-lens constant of the recorded camera (mm -> px, divided by 1000 for metres).
     cam = meta["camera"]
@@ -104,7 +104,7 @@ def test_hdr_keeps_emitters_far_above_one(demo):
             assert window.max() > 1.0, (e, window.max())
             seen += 1
         assert seen >= len(meta["emitters"]) // 2
-        assert peak.max() > 10.0
+        assert 10.0 < peak.max() <= meta["emitter_radiance_max"] * (1 + 1e-6)
         # Elsewhere the scene is display-referred (a diffuse set under modest lights).
         assert np.median(peak) < 1.0
 
