@@ -14,6 +14,7 @@ log = logging.getLogger("rvr")
 
 DEMO_DIR = Path("out/demo_scene")
 DEMO_OUT = Path("out/demo_refocus.mp4")
+DEMO_FRAMES = 48
 
 
 def _aperture_spec(args: argparse.Namespace):
@@ -32,8 +33,8 @@ def add_render_parser(sub) -> None:
                                    "(+ an HDR exponent sequence) and a focus track or constants.")
     p.add_argument("input", nargs="?", type=Path, help="video file, image folder, glob or frame pattern")
     p.add_argument("--demo", action="store_true",
-                   help="render the built-in demo: a Cycles scene with exact depth (rendered once into "
-                        f"{DEMO_DIR}), rack focus from the subject to the background")
+                   help="render the built-in demo: a Cycles scene with exact depth and HDR (rendered once "
+                        f"into {DEMO_DIR}), rack focus from the subject to the background and back")
     p.add_argument("--depth", type=Path, help="disparity sequence (EXR/PNG/NPY file, folder or pattern)")
     p.add_argument("--depth-scale", type=float, default=1.0, help="multiply depth values (to DESIGN units)")
     p.add_argument("--depth-offset", type=float, default=0.0, help="then add this")
@@ -61,10 +62,13 @@ def add_render_parser(sub) -> None:
 
 def ensure_demo_scene(directory: Path = DEMO_DIR) -> Path:
     """Render the demo scene with Cycles (in a child process) unless it is already there."""
-    if (directory / "meta.json").is_file():
+    import json
+
+    meta = directory / "meta.json"
+    if meta.is_file() and json.loads(meta.read_text()).get("frames") == DEMO_FRAMES:
         return directory
-    print(f"rendering the demo scene with Cycles into {directory} (once; about a minute)", file=sys.stderr)
-    cmd = [sys.executable, "-m", "sintel_eval", "demo", "-o", str(directory)]
+    print(f"rendering the demo scene with Cycles into {directory} (once; about two minutes)", file=sys.stderr)
+    cmd = [sys.executable, "-m", "sintel_eval", "demo", "-o", str(directory), "--frames", str(DEMO_FRAMES)]
     if subprocess.call(cmd) != 0:
         raise RvrError(f"rendering the demo scene failed ({' '.join(cmd)}); is bpy installed? run scripts/setup.sh")
     return directory

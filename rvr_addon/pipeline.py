@@ -76,8 +76,8 @@ def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_le
 
 def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None:
     """Add to a demo-scene folder the HDR exponents (``hdr_exponent/*.npy``, from the exact
-    radiance in ``hdr/``) and a rack-focus track (``focus_track.json``: subject, then a pull
-    to the background over the middle third). Idempotent."""
+    radiance in ``hdr/``) and a rack-focus track (``focus_track.json``: the subject, a pull to
+    the background, a hold, and a pull back). Idempotent."""
     import json
 
     import cv2
@@ -102,11 +102,12 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
     track = directory / "focus_track.json"
     if not track.is_file():
         near, far = float(meta["subject_disparity"]), float(meta["background_disparity"])
-        pull = pull_frames or max(n // 3, 1)
-        a = max((n - pull) // 2, 0)
-        keys = [{"frame": 0, "focus": near, "aperture": 1.0}, {"frame": a, "focus": near, "aperture": 1.0},
-                {"frame": a + pull, "focus": far, "aperture": 1.0}, {"frame": n - 1, "focus": far, "aperture": 1.0}]
-        track.write_text(json.dumps({"keys": keys}, indent=1))
+        pull = pull_frames or max(n // 5, 1)
+        hold = max((n - 2 * pull) // 3, 0)
+        keys = [(0, near), (hold, near), (hold + pull, far), (2 * hold + pull, far),
+                (2 * hold + 2 * pull, near), (n - 1, near)]
+        track.write_text(json.dumps({"keys": [{"frame": min(f, n - 1), "focus": v, "aperture": 1.0}
+                                              for f, v in keys]}, indent=1))
 
 
 def _replace_dir(new: Path, old: Path) -> None:
