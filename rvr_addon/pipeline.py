@@ -15,7 +15,7 @@ from typing import Iterator
 import numpy as np
 
 from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
-from .errors import Cancelled, InputError
+from .errors import InputError
 from .io.maps import open_map_sequence
 from .io.track import FocusTrack, constant_track, load_track, resolve_track
 from .io.video import ClipInfo, iter_frames, probe_clip
@@ -208,7 +208,7 @@ class RenderJob:
                 w = VideoWriter(out, fps=self.clip.fps, size=size, audio_from=audio, audio_start=self.start / self.clip.fps)
             else:
                 w = sequence_writer(out, start=self.start + 1)
-            self._writers.append(w.__enter__())
+            self._writers.append(w)
 
     def step(self) -> bool:
         """Render and write the next frame; returns False once everything is written."""
@@ -257,7 +257,7 @@ class RenderJob:
 
     def _close(self) -> None:
         for w in self._writers:
-            w.__exit__(None, None, None)
+            w.close()
         self._writers = []
         self._finished = True
         self.text = f"rendered {self.done} frames"
@@ -266,7 +266,7 @@ class RenderJob:
         """Stop and remove partial outputs; earlier results at the output paths survive."""
         for w in self._writers:
             try:
-                w.__exit__(Cancelled, Cancelled("aborted"), None)
+                w.abort()
             except Exception:  # noqa: BLE001 - cleanup must visit every writer
                 log.exception("cleaning up %s failed", w)
         self._writers = []

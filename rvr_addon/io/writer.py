@@ -12,6 +12,7 @@ import os
 import shutil
 import subprocess
 import tempfile
+from abc import ABC, abstractmethod
 from fractions import Fraction
 from pathlib import Path
 
@@ -40,7 +41,38 @@ def _has_audio(source: str | Path) -> bool:
         return False
 
 
-class VideoWriter:
+class _AtomicWriter(ABC):
+    """Context-manager life cycle shared by the writers: ``close()`` on success, ``abort()``
+    on an exception or when dropped unclosed (no temp file or child process is left)."""
+
+    _closed = True
+
+    @abstractmethod
+    def close(self) -> None:
+        """Finish and move the result into place."""
+
+    @abstractmethod
+    def abort(self) -> None:
+        """Drop everything written; an earlier result at the target survives."""
+
+    def __del__(self) -> None:
+        if not getattr(self, "_closed", True):
+            try:
+                self.abort()
+            except Exception:  # pragma: no cover - interpreter shutdown
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+class VideoWriter(_AtomicWriter):
     """Encode uint8 RGB frames to an H.264 (libx264, yuv420p, +faststart) MP4 with the bundled ffmpeg.
 
     path: destination file (its folder is created). fps: frames/s. size: (width, height) in px
@@ -101,23 +133,6 @@ class VideoWriter:
                 "-pix_fmt", "yuv420p", "-colorspace", "bt709", "-color_primaries", "bt709", "-color_trc", "bt709",
                 "-color_range", "tv", "-movflags", "+faststart", "-f", "mp4", str(self._tmp)]
         return cmd
-
-    def __del__(self) -> None:
-        # A writer dropped without close() must not leave ffmpeg running or a temp file behind.
-        if not getattr(self, "_closed", True):
-            try:
-                self.abort()
-            except Exception:  # pragma: no cover - interpreter shutdown
-                pass
-
-    def __enter__(self) -> "VideoWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def write(self, frame: np.ndarray) -> None:
         """Append one frame: (H, W, 3) uint8 RGB with (W, H) == size."""
@@ -192,7 +207,7 @@ def _unlink(path: Path) -> None:
         log.warning("Could not remove temp file '%s': %s", path, ex)
 
 
-class ImageSequenceWriter:
+class ImageSequenceWriter(_AtomicWriter):
     """Write numbered frames into `directory`, replacing it atomically on success.
 
     pattern: printf file name ("frame_%05d.png"); the suffix picks the format. PNG/JPG/TIF take
@@ -226,22 +241,6 @@ class ImageSequenceWriter:
         self.frames_written = 0
         self._shape: tuple[int, ...] | None = None
         self._closed = False
-
-    def __del__(self) -> None:
-        if not getattr(self, "_closed", True):
-            try:
-                self.abort()
-            except Exception:  # pragma: no cover - interpreter shutdown
-                pass
-
-    def __enter__(self) -> "ImageSequenceWriter":
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def write(self, frame: np.ndarray) -> Path:
         """Write the next frame; returns the final path it will have after close()."""
