@@ -53,6 +53,7 @@ def add_render_parser(sub) -> None:
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
     p.add_argument("--no-audio", action="store_true", help="do not copy the source audio")
     p.add_argument("--min-layers", type=int, default=1, help="use at least this many depth layers")
+    p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the size (0.5 = half-size proxy)")
     p.add_argument("-o", "--output", action="append", type=Path, default=None,
                    help="output .mp4 or image folder (repeatable; a folder/frame_%%05d.exr pattern "
                         "writes linear EXR)")
@@ -86,7 +87,8 @@ def demo_settings(args: argparse.Namespace):
     outputs = args.output or [DEMO_OUT]
     return RenderSettings(input=d / "frames", depth=d / "disparity", hdr=d / "hdr_exponent",
                           track=d / "focus_track.json", outputs=outputs, spec=_aperture_spec(args),
-                          naive=args.naive, fps=float(meta.get("fps", 24)), min_layers=args.min_layers)
+                          naive=args.naive, fps=float(meta.get("fps", 24)), min_layers=args.min_layers,
+                          scale=args.scale)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -104,7 +106,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             aperture=args.aperture, track=args.track, spec=_aperture_spec(args),
             depth_scale=args.depth_scale, depth_offset=args.depth_offset, naive=args.naive,
             start=args.start, stop=args.stop, fps=args.fps, keep_audio=not args.no_audio,
-            min_layers=args.min_layers)
+            min_layers=args.min_layers, scale=args.scale)
     job = RenderJob(settings)
     job.run(progress=not args.quiet)
     for out in settings.outputs:

@@ -40,6 +40,8 @@ class RenderSettings:
         either overrides focus and aperture.
     outputs: .mp4/.mov/.mkv files (H.264, source audio kept) and/or folders or patterns
         (``frame_%05d.png``; a ``.exr`` pattern writes linear HDR radiance).
+    scale: render at this fraction of the clip's size (a proxy, e.g. 0.5); blur radii scale
+        with the width, so the picture matches the full-size render, only smaller.
     """
 
     input: Path
@@ -60,6 +62,7 @@ class RenderSettings:
     keep_audio: bool = True
     max_step: float = 1.0
     min_layers: int = 1
+    scale: float = 1.0
 
 
 def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_level: float = 0.999) -> np.ndarray:
@@ -162,6 +165,8 @@ class RenderJob:
             raise InputError("no output given: pass -o OUT.mp4 and/or -o FRAMES_DIR")
         if s.aperture is not None and (not np.isfinite(s.aperture) or s.aperture < 0):
             raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
+        if not (0 < s.scale <= 4):
+            raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
         self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)
         stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
         if s.start < 0 or s.start >= stop:
@@ -187,14 +192,20 @@ class RenderJob:
         self._finished = False
 
     @property
+    def output_size(self) -> tuple[int, int]:
+        """(width, height) of the rendered frames in px."""
+        sc = self.settings.scale
+        return max(int(round(self.clip.width * sc)), 1), max(int(round(self.clip.height * sc)), 1)
+
+    @property
     def progress(self) -> float:
         """Fraction of frames rendered, 0..1."""
         return self.done / self.total if self.total else 1.0
 
     def _open(self) -> None:
         s = self.settings
-        size = (self.clip.width, self.clip.height)
-        first_d = self.depth.get(self.start if len(self.depth) > 1 else 0, size=size)
+        first_d = self.depth.get(self.start if len(self.depth) > 1 else 0, size=(self.clip.width, self.clip.height))
+        size = self.output_size
         if self.track is not None:
             self._focus, self._aperture = resolve_track(self.track, self.total, start=self.start)
         else:
@@ -234,16 +245,25 @@ class RenderJob:
             raise
 
     def _render(self, frame: np.ndarray, k: int) -> np.ndarray:
-        size = (frame.shape[1], frame.shape[0])
+        native = (frame.shape[1], frame.shape[0])
         t = self.start + k
-        disparity = self.depth.get(t if len(self.depth) > 1 else 0, size=size)
         exponent = None
         if self.hdr is not None:
-            exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=size)
+            exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=native)
             if exponent.ndim == 2:
                 exponent = exponent[..., None]
         radiance = hdr_radiance(srgb_to_linear(to_float01(frame)), exponent)
-        return self.renderer.render_linear(radiance, disparity, float(self._focus[k]), float(self._aperture[k]))
+        disparity = self.depth.get(t if len(self.depth) > 1 else 0, size=native)
+        sc = self.settings.scale
+        if sc != 1.0:  # a proxy: resample in linear light, as a smaller sensor would see it
+            import cv2
+
+            interp = cv2.INTER_AREA if sc < 1 else cv2.INTER_LINEAR
+            radiance = cv2.resize(radiance, self.output_size, interpolation=interp)
+            disparity = cv2.resize(disparity, self.output_size, interpolation=cv2.INTER_LINEAR)
+        # disparity is in px at the native width: radii scale with the rendered width
+        return self.renderer.render_linear(radiance, disparity * sc, float(self._focus[k]) * sc,
+                                           float(self._aperture[k]))
 
     def _write(self, linear: np.ndarray) -> None:
         srgb8 = None

@@ -173,3 +173,22 @@ def test_cli_render_with_shape_and_errors(frames_dir, depth_dir, tmp_path, capsy
     assert rvr_main(["render", str(frames_dir), "--depth", str(depth_dir), "--shape", "image",
                      "--kernel-image", str(tmp_path / "k.png"), "-q", "-o", str(out)]) == 2
     assert "k.png" in capsys.readouterr().err
+
+
+def test_half_size_proxy_matches_a_downscaled_full_render(frames_dir, tmp_path):
+    """Blur radii scale with the width: the proxy looks like the full render, only smaller."""
+    big = np.zeros((CLIP_H, CLIP_W), np.float32)
+    big[:, CLIP_W // 2:] = 8.0  # right half far behind the focus: 8 px blur at full size
+    np.save(tmp_path / "d.npy", big)
+    full, half = tmp_path / "full", tmp_path / "half"
+    for out, scale in ((full, 1.0), (half, 0.5)):
+        RenderJob(RenderSettings(input=frames_dir, depth=tmp_path / "d.npy", outputs=[out], focus=0.0,
+                                 stop=1, scale=scale)).run(progress=False)
+    a = cv2.imread(str(sorted(full.glob("*.png"))[0])).astype(np.float32)
+    b = cv2.imread(str(sorted(half.glob("*.png"))[0])).astype(np.float32)
+    assert b.shape == (CLIP_H // 2, CLIP_W // 2, 3)
+    down = cv2.resize(a, (CLIP_W // 2, CLIP_H // 2), interpolation=cv2.INTER_AREA)
+    blurred = (slice(4, -4), slice(CLIP_W // 4 + 4, -4))  # well inside the blurred half
+    assert np.abs(down[blurred] - b[blurred]).mean() < 4.0  # code values
+    with pytest.raises(InputError, match="scale"):
+        RenderJob(RenderSettings(input=frames_dir, depth=tmp_path / "d.npy", outputs=[full], scale=0.0))
