@@ -25,6 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rvr_addon.color import linear_to_srgb, srgb_to_linear, to_float01  # noqa: E402
+from rvr_addon.render.aperture import ApertureSpec  # noqa: E402
 from rvr_addon.render.fast import FastRenderer  # noqa: E402
 from rvr_addon.render.model import plan_for_radius_map  # noqa: E402
 from rvr_addon.render.reference import render_reference  # noqa: E402
@@ -105,6 +106,12 @@ def main() -> None:
         res[f"render.fast.{key}.max_radius_px"] = float(np.abs(disp).max())
         print(f"fast {key}: {res[f'render.fast.{key}.s_per_frame']:.3f} s/frame, {len(plan)} layers", file=sys.stderr)
     res["render.fast.1080p.peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    img, rad, disp = scenes["1080p"]
+    for name, spec in [("polygon7", ApertureSpec("polygon", blades=7)), ("anamorphic2x", ApertureSpec("anamorphic")),
+                       ("cat_eye", ApertureSpec(cat_eye=0.5))]:
+        fr = FastRenderer(spec=spec, min_layers=MIN_LAYERS)
+        res[f"render.fast_{name}.1080p.s_per_frame"] = seconds_per_frame(
+            lambda: fr.render_linear(rad, disp, 0.0, 1.0), 1 if args.quick else 3)
 
     # accuracy: fast vs brute-force reference on sRGB output; full 360p frame, and a 1080p crop
     img, rad, disp = scenes["360p"]

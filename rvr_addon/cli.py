@@ -24,7 +24,7 @@ def _aperture_spec(args: argparse.Namespace):
     if args.kernel_image and args.shape != "image":
         raise RvrError("--kernel-image needs --shape image")
     return ApertureSpec(shape=args.shape, blades=args.blades, rotation_deg=args.rotation,
-                        squeeze=args.squeeze, kernel_image=image)
+                        squeeze=args.squeeze, kernel_image=image, cat_eye=args.cat_eye)
 
 
 def add_render_parser(sub) -> None:
@@ -47,6 +47,8 @@ def add_render_parser(sub) -> None:
     p.add_argument("--rotation", type=float, default=0.0, help="polygon rotation in degrees")
     p.add_argument("--squeeze", type=float, default=2.0, help="anamorphic squeeze (bokeh height / width)")
     p.add_argument("--kernel-image", type=Path, help="aperture image for --shape image")
+    p.add_argument("--cat-eye", type=float, default=0.0,
+                   help="optical vignetting 0..1: bokeh turns into cat's eyes toward the frame edges")
     p.add_argument("--naive", action="store_true", help="sum layers without occlusion (ablation)")
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
     p.add_argument("--stop", type=int, help="stop before this frame")

@@ -26,6 +26,12 @@ class ApertureSpec:
         ``rotation_deg``), "anamorphic" (ellipse ``squeeze`` times taller than wide, as a
         2x anamorphic lens gives after de-squeeze; the vertical semi-axis is r), or "image"
         (``kernel_image``: a 2-D array, bright = open, scaled to the disk's diameter).
+    cat_eye: optical vignetting strength in [0, 1]. Toward the frame edges the aperture is
+        clipped by a disk of the same radius, the two offset radially by ``2 r * cat_eye * rho``
+        (rho = distance from the frame centre over the half-diagonal) and centred on the
+        point, so bokeh turns into "cat's eyes" elongated along the tangent. 0 = off.
+    zones: the frame is split into ``zones x zones`` cells; every source pixel of a cell uses
+        the kernel of the cell's centre (only when ``cat_eye > 0``).
     """
 
     shape: str = "disk"
@@ -33,6 +39,8 @@ class ApertureSpec:
     rotation_deg: float = 0.0
     squeeze: float = 2.0
     kernel_image: np.ndarray | None = field(default=None, compare=False, repr=False)
+    cat_eye: float = 0.0
+    zones: int = 7
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:
@@ -41,6 +49,10 @@ class ApertureSpec:
             raise InputError(f"a polygon aperture needs >= 3 blades, got blades={self.blades}")
         if self.shape == "anamorphic" and not (self.squeeze > 0 and math.isfinite(self.squeeze)):
             raise InputError(f"anamorphic squeeze must be a positive number (e.g. 2.0), got {self.squeeze}")
+        if not (0.0 <= self.cat_eye <= 1.0):
+            raise InputError(f"cat's-eye strength must be in [0, 1] (0 = off), got {self.cat_eye}")
+        if self.zones < 1:
+            raise InputError(f"cat's-eye zones must be >= 1, got {self.zones}")
         if self.shape == "image":
             img = self.kernel_image
             if img is None or img.ndim != 2 or img.size == 0:
@@ -53,7 +65,26 @@ class ApertureSpec:
     def key(self) -> tuple:
         """Hashable identity of the shape, for kernel caches."""
         img_id = None if self.kernel_image is None else id(self.kernel_image)
-        return (self.shape, self.blades, self.rotation_deg, self.squeeze, img_id)
+        return (self.shape, self.blades, self.rotation_deg, self.squeeze, img_id, self.cat_eye, self.zones)
+
+    @property
+    def varies(self) -> bool:
+        """True when the kernel depends on the position in the frame (cat's eye on)."""
+        return self.cat_eye > 0 and self.zones > 1
+
+
+def zone_edges(length: int, zones: int) -> np.ndarray:
+    """Pixel boundaries of ``zones`` equal cells over ``length`` px: (zones + 1,) int."""
+    return np.round(np.linspace(0, length, zones + 1)).astype(np.int64)
+
+
+def zone_offset(spec: "ApertureSpec", zy: int, zx: int) -> tuple[float, float]:
+    """Normalised position (x, y) of a zone's centre: the frame centre is (0, 0) and the
+    corners are at distance 1 (x to the right, y up)."""
+    n = spec.zones
+    cx = (zx + 0.5) / n * 2 - 1
+    cy = 1 - (zy + 0.5) / n * 2
+    return cx / math.sqrt(2), cy / math.sqrt(2)
 
 
 def load_kernel_image(path: str | Path) -> np.ndarray:
@@ -107,11 +138,12 @@ def _rim_distance(spec: ApertureSpec, x: np.ndarray, y: np.ndarray, r: float) ->
     raise AssertionError(spec.shape)
 
 
-def make_kernel(spec: ApertureSpec, radius: float) -> np.ndarray:
+def make_kernel(spec: ApertureSpec, radius: float, position: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
     """Aperture kernel of radius ``radius`` px: (2R+1, 2R+1) float32 summing to 1.
 
     Rows go down the image (y down), columns right; the kernel is the PSF as seen in the
-    image, so a point scatters into exactly this picture.
+    image, so a point scatters into exactly this picture. ``position``: where in the frame
+    (see :func:`zone_offset`); it matters only with cat's-eye vignetting.
 
     >>> make_kernel(ApertureSpec(), 0.0).shape
     (3, 3)
@@ -120,7 +152,18 @@ def make_kernel(spec: ApertureSpec, radius: float) -> np.ndarray:
         raise ValueError(f"kernel radius must be a finite number >= 0 px, got {radius}")
     half = kernel_half_size(radius)
     if spec.shape == "image":
-        return _image_kernel(spec.kernel_image, radius, half)
+        k = _image_kernel(spec.kernel_image, radius, half)
+        hx, hy = _cat_eye_shift(spec, max(radius, 0.5), position)
+        if hx or hy:  # the picture moved by -h (whole px), clipped by the disk at +h
+            k = _shift(k, int(round(hy)), int(round(-hx)))
+            coords = np.arange(-half, half + 1, dtype=np.float64)
+            yy, xx = np.meshgrid(coords, coords, indexing="ij")
+            clip = np.clip(max(radius, 0.5) + 0.5 - np.hypot(xx - hx, -yy - hy), 0, 1)
+            k = k * clip.astype(np.float32)
+            if k.sum() <= 0:
+                k[half, half] = 1.0
+            k /= k.sum()
+        return k
     # 4x4 supersampling of the coverage makes small kernels accurate; the signed distance
     # gives a further sub-sample anti-aliasing band
     ss = 4
@@ -130,11 +173,33 @@ def make_kernel(spec: ApertureSpec, radius: float) -> np.ndarray:
     xx = (coords[None, :, None, None] + offs[None, None, None, :])
     yy, xx = np.broadcast_arrays(yy, xx)
     # a 1/ss-pixel wide band per sub-sample
-    sd = _rim_distance(spec, xx, -yy, max(radius, 0.5 / ss))  # y up for the shape
+    r = max(radius, 0.5 / ss)
+    hx, hy = _cat_eye_shift(spec, r, position)
+    # the aperture, shifted by -h, clipped by a disk of radius r shifted by +h: a lens shape
+    # centred on the point, elongated along the tangent (y up for the shape)
+    sd = _rim_distance(spec, xx + hx, -yy + hy, r)
+    if hx or hy:
+        sd = np.maximum(sd, np.hypot(xx - hx, -yy - hy) - r)
     cov = np.clip(0.5 - sd * ss, 0.0, 1.0).mean(axis=(2, 3))
     if cov.sum() <= 0:
         cov[half, half] = 1.0
     return (cov / cov.sum()).astype(np.float32)
+
+
+def _cat_eye_shift(spec: ApertureSpec, r: float, position: tuple[float, float]) -> tuple[float, float]:
+    """Half the offset (x, y up) in px between the aperture and the vignetting disk:
+    ``r * cat_eye * (position)``, pointing from the frame centre outward."""
+    if spec.cat_eye <= 0:
+        return 0.0, 0.0
+    return r * spec.cat_eye * position[0], r * spec.cat_eye * position[1]
+
+
+def _shift(a: np.ndarray, dy: int, dx: int) -> np.ndarray:
+    """a moved by (dy, dx) whole pixels (rows down, columns right), zero-filled."""
+    out = np.zeros_like(a)
+    h, w = a.shape
+    out[max(dy, 0):h + min(dy, 0), max(dx, 0):w + min(dx, 0)] = a[max(-dy, 0):h + min(-dy, 0), max(-dx, 0):w + min(-dx, 0)]
+    return out
 
 
 def _image_kernel(image: np.ndarray, radius: float, half: int) -> np.ndarray:

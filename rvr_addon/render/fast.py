@@ -19,7 +19,7 @@ import numpy as np
 
 from ..color import linear_to_srgb, srgb_to_linear, to_float01
 from ..errors import InputError
-from .aperture import ApertureSpec, make_kernel
+from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
     ALPHA_EPS,
     ALPHA_SPAN,
@@ -83,11 +83,16 @@ class FastRenderer:
         active = self._active_layers(u, j_lo, j_hi)
         h, w = u.shape
         radiance1 = cv2.merge((*cv2.split(radiance.astype(np.float32, copy=False)), np.ones((h, w), np.float32)))
+        zones = (zone_edges(h, self.spec.zones), zone_edges(w, self.spec.zones)) if self.spec.varies else None
         tasks = []
         for j in plan.indices:  # back to front
             tiles = active[int(j) - j_lo]
             if tiles.any():
-                kernel = self._kernel(abs(float(j) * plan.step))
+                radius = abs(float(j) * plan.step)
+                kernel = self._kernel(radius)
+                if zones is not None and kernel.size > 1:
+                    kernel = ZoneKernels(*zones, [[self._kernel(radius, (zy, zx)) for zx in range(self.spec.zones)]
+                                                  for zy in range(self.spec.zones)])
                 for box, core in layer_boxes(tiles, self.tile, kernel.shape[0] // 2, (h, w)):
                     tasks.append((float(j), kernel, box, core))
         acc = np.zeros((h, w, 4), dtype=np.float32)
@@ -146,12 +151,15 @@ class FastRenderer:
                 pending.append(self._pool.submit(fn, nxt))
             yield result
 
-    def _kernel(self, radius: float) -> np.ndarray:
-        """Flipped (scatter == correlation with the flipped PSF) kernel; (1,1) for a delta."""
-        key = (self.spec.key, round(radius, 6))
+    def _kernel(self, radius: float, zone: tuple[int, int] | None = None) -> np.ndarray:
+        """Flipped (scatter == correlation with the flipped PSF) kernel; (1,1) for a delta.
+
+        zone: (row, column) of the cat's-eye zone, or None for the centre's kernel."""
+        key = (self.spec.key, round(radius, 6), zone)
         k = self._kernels.get(key)
         if k is None:
-            k = make_kernel(self.spec, radius)
+            position = zone_offset(self.spec, *zone) if zone is not None else (0.0, 0.0)
+            k = make_kernel(self.spec, radius, position)
             if np.count_nonzero(k > 1e-7) == 1 and k[k.shape[0] // 2, k.shape[1] // 2] > 0.999999:
                 k = np.ones((1, 1), np.float32)
             else:
@@ -252,10 +260,50 @@ def blur_layer_box(
     else:
         alpha = _alpha_cv(uc, j, j_hi)
     core_src = cv2.multiply(radiance1[cy0:cy1, cx0:cx1], cv2.merge((alpha, alpha, alpha, alpha)))
+    if isinstance(kernel, ZoneKernels):
+        return _blur_by_zones(core_src, kernel, box, core)
     src = cv2.copyMakeBorder(core_src, cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1, cv2.BORDER_CONSTANT, value=0)
     if kernel.size > 1:
         src = cv2.filter2D(src, -1, kernel, borderType=cv2.BORDER_CONSTANT)
     return src
+
+
+@dataclass(frozen=True)
+class ZoneKernels:
+    """Per-zone (flipped) kernels of one radius for cat's-eye vignetting: zone (zy, zx)
+    covers rows ys[zy]:ys[zy+1] and columns xs[zx]:xs[zx+1]; all kernels have one shape."""
+
+    ys: np.ndarray
+    xs: np.ndarray
+    kernels: list
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.kernels[0][0].shape
+
+
+def _blur_by_zones(core_src: np.ndarray, zk: ZoneKernels, box: Box, core: Box) -> np.ndarray:
+    """Scatter the core's sources with the kernel of each source's zone; sum over zones."""
+    y0, y1, x0, x1 = box
+    cy0, cy1, cx0, cx1 = core
+    half = zk.shape[0] // 2
+    out = np.zeros((y1 - y0, x1 - x0, 4), dtype=np.float32)
+    for zy in range(len(zk.ys) - 1):
+        sy0, sy1 = max(cy0, zk.ys[zy]), min(cy1, zk.ys[zy + 1])
+        if sy0 >= sy1:
+            continue
+        for zx in range(len(zk.xs) - 1):
+            sx0, sx1 = max(cx0, zk.xs[zx]), min(cx1, zk.xs[zx + 1])
+            if sx0 >= sx1:
+                continue
+            # the zone's sources and their footprint (inside the box, which holds the core + half)
+            top, left = min(half, sy0 - y0), min(half, sx0 - x0)
+            bottom, right = min(half, y1 - sy1), min(half, x1 - sx1)
+            src = cv2.copyMakeBorder(core_src[sy0 - cy0:sy1 - cy0, sx0 - cx0:sx1 - cx0], top, bottom, left, right,
+                                     cv2.BORDER_CONSTANT, value=0)
+            src = cv2.filter2D(src, -1, zk.kernels[zy][zx], borderType=cv2.BORDER_CONSTANT)
+            out[sy0 - top - y0:sy1 + bottom - y0, sx0 - left - x0:sx1 + right - x0] += src
+    return out
 
 
 def _alpha_cv(u: np.ndarray, j: float, j_hi: float) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .aperture import ApertureSpec, make_kernel
+from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
     ALPHA_EPS,
     LayerPlan,
@@ -32,6 +32,22 @@ def scatter(src: np.ndarray, kernel: np.ndarray) -> np.ndarray:
         if ty0 >= ty1 or tx0 >= tx1:
             continue
         out[ty0:ty1, tx0:tx1] += kernel[ky, kx] * src[ty0 - dy:ty1 - dy, tx0 - dx:tx1 - dx]
+    return out
+
+
+def spread(src: np.ndarray, spec: ApertureSpec, radius: float) -> np.ndarray:
+    """Scatter src (H, W, C) with the aperture of ``radius``; with cat's-eye vignetting each
+    source pixel uses the kernel of its zone."""
+    if not spec.varies:
+        return scatter(src, make_kernel(spec, radius).astype(np.float64))
+    h, w = src.shape[:2]
+    ys, xs = zone_edges(h, spec.zones), zone_edges(w, spec.zones)
+    out = np.zeros_like(src)
+    for zy in range(spec.zones):
+        for zx in range(spec.zones):
+            part = np.zeros_like(src)
+            part[ys[zy]:ys[zy + 1], xs[zx]:xs[zx + 1]] = src[ys[zy]:ys[zy + 1], xs[zx]:xs[zx + 1]]
+            out += scatter(part, make_kernel(spec, radius, zone_offset(spec, zy, zx)).astype(np.float64))
     return out
 
 
@@ -69,7 +85,7 @@ def render_reference(
     acc = np.zeros(rad.shape[:2] + (4,), dtype=np.float64)
     for j, m in zip(plan.indices, mattes):
         src = np.concatenate([rad * m[..., None], m[..., None]], axis=2)
-        blurred = scatter(src, make_kernel(spec, abs(float(j) * plan.step)).astype(np.float64))
+        blurred = spread(src, spec, abs(float(j) * plan.step))
         if not naive:
             acc *= 1.0 - blurred[..., 3:4]
         acc += blurred

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .aperture import ApertureSpec, make_kernel
+from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import ALPHA_EPS, LayerPlan, layer_alpha, matte_unnormalised, plan_layers
 
 DIRECT_MAX_SIDE = 11
@@ -45,6 +45,22 @@ def scatter_blur(x: torch.Tensor, kernel: np.ndarray) -> torch.Tensor:
     spec = torch.fft.rfft2(x, s=(fh, fw)) * torch.fft.rfft2(k, s=(fh, fw))
     full = torch.fft.irfft2(spec, s=(fh, fw))
     return full[..., half:half + h, half:half + w]
+
+
+def spread(x: torch.Tensor, spec: ApertureSpec, radius: float) -> torch.Tensor:
+    """Scatter x (B, C, H, W) with the aperture of ``radius``; with cat's-eye vignetting each
+    source pixel uses the kernel of its zone (same model as the other paths)."""
+    if not spec.varies:
+        return scatter_blur(x, make_kernel(spec, radius))
+    h, w = x.shape[-2:]
+    ys, xs = zone_edges(h, spec.zones), zone_edges(w, spec.zones)
+    out = torch.zeros_like(x)
+    for zy in range(spec.zones):
+        for zx in range(spec.zones):
+            mask = torch.zeros(1, 1, h, w, dtype=x.dtype, device=x.device)
+            mask[..., ys[zy]:ys[zy + 1], xs[zx]:xs[zx + 1]] = 1.0
+            out = out + scatter_blur(x * mask, make_kernel(spec, radius, zone_offset(spec, zy, zx)))
+    return out
 
 
 def render_torch(
@@ -83,6 +99,6 @@ def render_torch(
         if not bool((m > 0).any()):
             continue
         layer = torch.cat([radiance * m, m], dim=1)
-        blurred = scatter_blur(layer, make_kernel(spec, abs(float(j) * plan.step)))
+        blurred = spread(layer, spec, abs(float(j) * plan.step))
         acc = acc + blurred if naive else acc * (1.0 - blurred[:, 3:4]) + blurred
     return acc[:, :3] / acc[:, 3:4].clamp(min=ALPHA_EPS)

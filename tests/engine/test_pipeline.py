@@ -166,7 +166,7 @@ def test_refuses_to_replace_a_folder_of_other_files(frames_dir, depth_dir, tmp_p
 def test_cli_render_with_shape_and_errors(frames_dir, depth_dir, tmp_path, capsys):
     out = tmp_path / "cli.mp4"
     code = rvr_main(["render", str(frames_dir), "--depth", str(depth_dir), "--focus", "1", "--aperture", "2",
-                     "--shape", "polygon", "--blades", "5", "-q", "-o", str(out)])
+                     "--shape", "polygon", "--blades", "5", "--cat-eye", "0.5", "-q", "-o", str(out)])
     assert code == 0 and out.is_file()
     assert rvr_main(["render", str(frames_dir), "--depth", str(tmp_path / "none"), "-q", "-o", str(out)]) == 2
     assert "none" in capsys.readouterr().err

@@ -100,6 +100,28 @@ def test_anamorphic_is_squeeze_times_taller_than_wide():
     assert (rows.max() - rows.min()) / (cols.max() - cols.min()) == pytest.approx(2.0, rel=0.1)
 
 
+def _extent(k):
+    rows = np.nonzero(k.sum(axis=1) > 1e-6)[0]
+    cols = np.nonzero(k.sum(axis=0) > 1e-6)[0]
+    return rows.max() - rows.min() + 1, cols.max() - cols.min() + 1
+
+
+def test_cat_eye_bokeh_is_elongated_along_the_tangent_and_centred():
+    spec = ApertureSpec(cat_eye=0.7)
+    centre = make_kernel(spec, 10.0, (0.0, 0.0))
+    assert np.array_equal(centre, make_kernel(ApertureSpec(), 10.0))  # no vignetting at the centre
+    right = make_kernel(spec, 10.0, (0.7, 0.0))
+    top = make_kernel(spec, 10.0, (0.0, 0.7))
+    h, w = _extent(right)
+    assert h > 1.5 * w  # at the right edge: a vertical cat's eye
+    h, w = _extent(top)
+    assert w > 1.5 * h  # at the top: a horizontal one
+    yy, xx = np.mgrid[:right.shape[0], :right.shape[1]] - right.shape[0] // 2
+    assert abs((right * xx).sum()) < 0.05 and abs((right * yy).sum()) < 0.05  # centred on the point
+    with pytest.raises(InputError, match="cat's-eye"):
+        ApertureSpec(cat_eye=1.5)
+
+
 def test_image_kernel_keeps_the_picture(tmp_path):
     import cv2
 

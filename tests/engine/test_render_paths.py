@@ -17,6 +17,7 @@ SPECS = [
     pytest.param(ApertureSpec("polygon", blades=5, rotation_deg=12.0), id="pentagon"),
     pytest.param(ApertureSpec("anamorphic", squeeze=2.0), id="anamorphic-2x"),
     pytest.param(ApertureSpec("image", kernel_image=np.tri(9, 9)[::-1].copy()), id="image-asymmetric"),
+    pytest.param(ApertureSpec(cat_eye=0.8, zones=5), id="disk-cat-eye"),
 ]
 
 
@@ -83,7 +84,7 @@ def test_fast_min_layers_finer_grid():
 
 
 @pytest.mark.parametrize("naive", [False, True], ids=["occlusion", "naive"])
-@pytest.mark.parametrize("spec", SPECS[:2])
+@pytest.mark.parametrize("spec", [SPECS[0], SPECS[1], SPECS[4]])
 def test_torch_equals_reference(spec, naive):
     rad, disp = scene()
     ref = render_reference(rad, disp, 1.0, 3.0, spec=spec, naive=naive)  # radii up to 12: FFT path too
