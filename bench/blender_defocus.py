@@ -240,7 +240,7 @@ def zbuffer_depth_from_radius(radius_px: np.ndarray, *, width: int, max_radius_p
 
 def blender_defocus(image_srgb: np.ndarray, radius_px: np.ndarray, *, max_radius_px: float,
                     repeats: int = 3, samples_note: str = "",
-                    use_zbuffer: bool = False) -> tuple[float, np.ndarray]:
+                    use_zbuffer: bool = False, measure: bool = True) -> tuple[float, np.ndarray]:
     """Run Blender's Compositor Defocus node on image_srgb (H, W, 3) uint8 sRGB with a per-pixel
     blur RADIUS map radius_px (H, W) float32 in pixels (>= 0; our renderer's |signed radius|),
     configured so that Blender blurs each pixel by (as close as Blender allows) the same radius,
@@ -257,7 +257,8 @@ def blender_defocus(image_srgb: np.ndarray, radius_px: np.ndarray, *, max_radius
 
     The timing is the wall time of ``bpy.ops.render.render()`` on a scene without render layers
     (= one compositor evaluation: reading the two in-memory images, the Defocus node, writing the
-    render result). ``LAST_RUN`` additionally holds the same timing with the Defocus node muted
+    render result). ``measure=False`` renders once (no warm-up, no muted pass-through runs) for
+    callers that only want the image, e.g. the ablation harness. ``LAST_RUN`` additionally holds the same timing with the Defocus node muted
     (pass-through overhead) and their difference. ``samples_note`` is only recorded in
     ``LAST_RUN`` (Blender 5.0's Defocus has no sample-count setting; it always gathers exactly).
     """
@@ -313,6 +314,14 @@ def blender_defocus(image_srgb: np.ndarray, radius_px: np.ndarray, *, max_radius
     setup_s = time.perf_counter() - t_setup
 
     name = bench.scene.name
+    if not measure:
+        times = [_render_once(name)]
+        out = _read_render_result(bench)
+        LAST_RUN.clear()
+        LAST_RUN.update(seconds_per_frame=times[0], times=times, setup_seconds=setup_s, size=(w, h),
+                        max_radius_px=float(max_radius_px), use_zbuffer=bool(use_zbuffer),
+                        blender_f_stop=float(d.f_stop), samples_note=samples_note)
+        return times[0], out
     _render_once(name)  # warm-up (bokeh kernel cache, image buffers, thread pool)
     times = [_render_once(name) for _ in range(repeats)]
     out = _read_render_result(bench)

@@ -11,7 +11,6 @@ least 24 layers. The last line of stdout is the JSON of DESIGN.md's keys.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import resource
 import sys
@@ -79,12 +78,10 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def load_blender_defocus():
-    path = ROOT / "bench" / "blender_defocus.py"
-    spec = importlib.util.spec_from_file_location("rvr_bench_blender_defocus", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    """bench/blender_defocus.py as a module (the shared loader in sintel_eval.blender_baseline)."""
+    from sintel_eval.blender_baseline import load_blender_defocus as load
+
+    return load()
 
 
 def main() -> None:

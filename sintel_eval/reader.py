@@ -101,7 +101,7 @@ def aperture_spec(camera: dict) -> ApertureSpec:
     ratio = float(camera.get("ratio", 1.0) or 1.0)
     if blades >= 3:
         return ApertureSpec(shape="polygon", blades=blades,
-                            rotation_deg=math.degrees(float(camera.get("rotation_rad", 0.0) or 0.0)))
+                            rotation_deg=math.degrees(float(camera.get("rotation", 0.0) or 0.0)))
     if abs(ratio - 1.0) > 1e-6:
         log.warning("aperture ratio %.3g of the dataset camera is not modelled; using a round disk", ratio)
     return ApertureSpec()
@@ -161,12 +161,13 @@ class ClipReader:
         if not fmt.startswith(FORMAT_PREFIX):
             raise InputError(f"Manifest '{self.folder / MANIFEST}' has format {fmt!r}, not '{FORMAT_PREFIX}...'; "
                              "it is not a harness clip.")
-        config = self.manifest.get("config", {})
+        config = {**{k: self.manifest.get(k) for k in ("frames", "width", "height", "fps")},
+                  **self.manifest.get("config", {})}
         self.name = self.folder.name
-        self.frames = int(config.get("frames", 0) or 0)
-        self.width = int(config.get("width", 0) or 0)
-        self.height = int(config.get("height", 0) or 0)
-        self.fps = float(config.get("fps", 24) or 24)
+        self.frames = int(config.get("frames") or 0)
+        self.width = int(config.get("width") or 0)
+        self.height = int(config.get("height") or 0)
+        self.fps = float(config.get("fps") or 24)
         if self.frames < 1:
             raise InputError(f"Manifest '{self.folder / MANIFEST}' gives config.frames = {self.frames}; "
                              "regenerate the clip.")
