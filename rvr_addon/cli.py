@@ -1,4 +1,5 @@
-"""The ``rvr`` command line: ``rvr render INPUT --depth DEPTH ... -o OUT`` and ``rvr render --demo``."""
+"""The ``rvr`` command line: ``rvr render INPUT --depth DEPTH ... -o OUT``, ``rvr render --demo``,
+``rvr train --data DIR -o RUN_DIR`` and ``rvr estimate INPUT -o CACHE``."""
 from __future__ import annotations
 
 import argparse
@@ -116,11 +117,119 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_train_parser(sub) -> None:
+    p = sub.add_parser("train", help="train the RGBD-HDR estimator (disparity + HDR from one frame)",
+                       description="Train the RGBD-HDR estimator through the differentiable renderer (paper "
+                                   "section 4.1) on harness clips and/or your own aperture-bracketed photos. "
+                                   "Resumable (--resume), with a progress bar, loss_log.csv and loss.png in the "
+                                   "run folder; writes RUN_DIR/estimator.pt at the end.")
+    p.add_argument("--data", action="append", type=Path, default=[], metavar="DIR",
+                   help="harness dataset: a folder of clips written by `python -m sintel_eval generate` (repeatable)")
+    p.add_argument("--user-photos", action="append", type=Path, default=[], metavar="DIR",
+                   help="folder of bracketed photos: NAME_small.jpg + NAME_large.jpg [+ NAME_medium.jpg] "
+                        "[+ NAME.json], or one sub-folder per shot (repeatable)")
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="RUN_DIR", help="run folder")
+    p.add_argument("--iterations", type=int, default=20000, help="total iterations of the run (default 20000)")
+    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its checkpoint")
+    p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate (paper: 1e-4)")
+    p.add_argument("--batch", type=int, default=1, help="samples per step (paper: 1)")
+    p.add_argument("--crop", type=int, default=128, help="training crop side in px (default 128)")
+    p.add_argument("--min-scale", type=float, default=0.5, help="smallest random resize factor (default 0.5)")
+    p.add_argument("--vgg19", type=Path, metavar="PATH",
+                   help="local VGG-19 state dict (torchvision layout) for the paper's perceptual loss")
+    p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
+    p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints and plots")
+    p.add_argument("--seed", type=int, default=0, help="seed of the model init and the sample draws")
+    p.add_argument("--photo-max-side", type=int, default=1024, help="bracketed photos are downscaled to this")
+    p.add_argument("--align", choices=("homography", "affine", "euclidean", "translation"), default="homography",
+                   help="ECC motion model for bracketed photos (default homography)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_train)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from .estimate.losses import LossWeights
+    from .estimate.train import Trainer, TrainSettings
+
+    if not 0 < args.min_scale <= 1:
+        raise RvrError(f"--min-scale must be in (0, 1], got {args.min_scale}")
+    settings = TrainSettings(
+        run_dir=args.output, data=args.data, user_photos=args.user_photos, iterations=args.iterations,
+        lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
+        weights=LossWeights(smooth=args.w_smooth), checkpoint_every=args.checkpoint_every, seed=args.seed,
+        resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align)
+    trainer = Trainer(settings, progress=not args.quiet)
+    print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
+    try:
+        trainer.run(progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"rvr train: interrupted at iteration {trainer.iteration}; checkpoint saved in {args.output}; "
+              "continue with the same command and --resume", file=sys.stderr)
+        return 130
+    if trainer.report.total:
+        print(f"rvr train: {trainer.report.summary()} (see the warnings above)", file=sys.stderr)
+    print(f"wrote {args.output / 'estimator.pt'} ({trainer.iteration} iterations, {trainer.wall_time:.0f} s)")
+    return 0
+
+
+def _depth_point(text: str):
+    from .estimate.infer import parse_point
+
+    try:
+        return parse_point(text)
+    except RvrError as ex:
+        raise argparse.ArgumentTypeError(str(ex)) from None
+
+
+def add_estimate_parser(sub) -> None:
+    p = sub.add_parser("estimate", help="estimate disparity D and HDR E per frame into a cache folder",
+                       description="Estimate D (disparity, DESIGN units) and E (HDR exponent) for every frame "
+                                   "and write the per-clip cache (one EXR per frame + meta.json). Resumable: "
+                                   "frames already cached for the same model and source are kept.")
+    p.add_argument("input", type=Path, help="video file, image folder, glob or frame pattern")
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="CACHE", help="cache folder")
+    p.add_argument("--weights", type=Path, help="estimator weights (RUN_DIR/estimator.pt from rvr train)")
+    p.add_argument("--depth", type=Path, help="external depth/disparity maps (EXR/PNG/NPY file, folder or pattern) "
+                                              "used for D instead of the network")
+    p.add_argument("--depth-scale", type=float, default=1.0, help="D = scale * map + offset")
+    p.add_argument("--depth-offset", type=float, default=0.0, help="D = scale * map + offset")
+    p.add_argument("--depth-points", type=_depth_point, nargs=2, metavar="X,Y,D",
+                   help="fit scale and offset so that pixel (X, Y) of the first frame gets disparity D (two points)")
+    p.add_argument("--depth-is-distance", action="store_true",
+                   help="the maps hold distance (larger = farther): use 1/map before the affine")
+    p.add_argument("--no-hdr", action="store_true", help="with --depth: E = 0 (no network needed)")
+    p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
+    p.add_argument("--stop", type=int, help="stop before this frame")
+    p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_estimate)
+
+
+def cmd_estimate(args: argparse.Namespace) -> int:
+    from .estimate.infer import EstimateJob, EstimateSettings
+
+    job = EstimateJob(EstimateSettings(
+        input=args.input, output=args.output, weights=args.weights, depth=args.depth, depth_scale=args.depth_scale,
+        depth_offset=args.depth_offset, depth_points=list(args.depth_points or []),
+        depth_is_distance=args.depth_is_distance, no_hdr=args.no_hdr, start=args.start, stop=args.stop,
+        fps=args.fps))
+    try:
+        job.run(progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"rvr estimate: stopped after {job.done} of {job.total} frames; they are kept in {args.output}; "
+              "run the same command again to continue", file=sys.stderr)
+        return 130
+    print(f"wrote {args.output} ({job.text})")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rvr", description="RVR-LAAF: refocusable video rendering.")
     parser.add_argument("--version", action="version", version=f"rvr {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     add_render_parser(sub)
+    add_train_parser(sub)
+    add_estimate_parser(sub)
     return parser
 
 

@@ -15,4 +15,15 @@ PYCHECK
 .venv/bin/python -m pip install --quiet --upgrade "pip>=24"
 .venv/bin/python -m pip install --quiet -r requirements.txt -c constraints.txt
 .venv/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
+# espeak-ng (Debian package; the harness' "conversation" script speaks with it). Best effort:
+# installed with apt-get when we are root and it is missing; the harness names the fix otherwise.
+# Tested with Debian 12's 1.51+dfsg-10+deb12u2 (the version is taken from the distribution).
+if ! command -v espeak-ng >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq espeak-ng) \
+      || echo "rvr-laaf: could not install espeak-ng; 'sintel_eval generate --script conversation' needs it" >&2
+  else
+    echo "rvr-laaf: espeak-ng is missing; for 'sintel_eval generate --script conversation' run: sudo apt-get install espeak-ng" >&2
+  fi
+fi
 .venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"

@@ -1,10 +1,15 @@
 """Ground-truth harness: procedural scenes rendered with Cycles through bpy (``python -m sintel_eval``).
 
-Importing the package does not import bpy; ``render_demo_scene`` does, on first use.
+Importing the package does not import bpy; ``render_demo_scene`` and ``generate`` do, on first use.
+
+Generator modules: camera_math (lens constants, units; no bpy), scene_plan (seeded scene
+description; no bpy), scripts_events (scripts, events, focus tracks; no bpy), speech
+(espeak-ng, voice activity, mouths; no bpy), bpy_util / materials / scene_builder (Blender
+objects), passes (Cycles renders), dataset (the clip folder, resume), generate_cli (CLI).
 """
 from __future__ import annotations
 
-__all__ = ["render_demo_scene"]
+__all__ = ["render_demo_scene", "generate", "GenerateConfig"]
 
 
 def __getattr__(name: str):
@@ -12,4 +17,8 @@ def __getattr__(name: str):
         from .demo_scene import render_demo_scene
 
         return render_demo_scene
+    if name in ("generate", "GenerateConfig"):
+        from . import dataset
+
+        return getattr(dataset, name)
     raise AttributeError(f"module 'sintel_eval' has no attribute {name!r}")

@@ -1,6 +1,8 @@
 """Command line of the ground-truth harness.
 
     python -m sintel_eval demo -o DIR [--frames N] [--size WxH] [--samples S] [--seed K]
+    python -m sintel_eval generate --seed K -o DIR [--frames N] [--size WxH] [--script NAME] [--force]
+    python -m sintel_eval ablate DATASET -o REPORT [--variants A,B] [--force] [--max-frames N]
 """
 from __future__ import annotations
 
@@ -43,11 +45,25 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--seed", type=int, default=0, metavar="K", help="scene seed (default 0)")
     demo.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
     demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    from .ablate import add_parser as add_ablate_parser  # `ablate` (sintel_eval/ablate.py)
+
+    add_ablate_parser(sub)
+    from .generate_cli import add_parser as add_generate_parser  # `generate` (sintel_eval/generate_cli.py)
+
+    add_generate_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.command == "ablate":  # bpy is needed only by its Blender Defocus variant
+        from .ablate import main as ablate_main
+
+        return ablate_main(args)
+    if args.command == "generate":
+        from .generate_cli import main as generate_main
+
+        return generate_main(args)
     try:
         import bpy  # noqa: F401  (the harness renders with Blender as a Python module)
     except ImportError:

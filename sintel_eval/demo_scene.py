@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import tempfile
 import time
 from dataclasses import dataclass
@@ -42,16 +41,22 @@ from pathlib import Path
 import numpy as np
 
 from rvr_addon.errors import InputError, OutputError
-from rvr_addon.io.exr import read_exr, write_exr
-from rvr_addon.io.paths import temp_sibling
+from rvr_addon.io.exr import write_exr
 
-try:  # sintel_eval may import bpy; give a clear message where it is missing.
-    import bpy
-    import bmesh
-except ImportError as exc:  # pragma: no cover - exercised only without bpy
-    raise ImportError(
-        "bpy is not installed: run ./scripts/setup.sh (it installs bpy==5.0.1 into .venv)"
-    ) from exc
+from .bpy_util import aim as _aim
+from .bpy_util import atomic as _atomic
+from .bpy_util import bpy
+from .bpy_util import box as _box
+from .bpy_util import cylinder as _cylinder
+from .bpy_util import emission_material as _emission_material
+from .bpy_util import quad as _quad
+from .bpy_util import read_multilayer as _read_multilayer
+from .bpy_util import reset_blender
+from .bpy_util import set_image_settings as _set_image_settings
+from .bpy_util import setup_render as _setup_render
+from .bpy_util import sphere as _sphere
+from .bpy_util import working_space as _working_space
+from .materials import demo_library as _materials
 
 # ---------------------------------------------------------------------------------------------
 # Camera and scene constants (metres unless suffixed _mm)
@@ -133,220 +138,6 @@ class _Emitter:
     position: tuple[float, float, float]
     radius: float
     radiance: tuple[float, float, float]
-
-
-def _link_object(name: str, bm: "bmesh.types.BMesh", location=(0.0, 0.0, 0.0), smooth: bool = False,
-                 material=None, scale=(1.0, 1.0, 1.0)):
-    mesh = bpy.data.meshes.new(name)
-    bm.to_mesh(mesh)
-    bm.free()
-    if smooth:
-        mesh.shade_smooth()
-    obj = bpy.data.objects.new(name, mesh)
-    obj.location = location
-    obj.scale = scale
-    if material is not None:
-        mesh.materials.append(material)
-    bpy.context.scene.collection.objects.link(obj)
-    return obj
-
-
-def _sphere(name, radius, location, material, segments=32, scale=(1.0, 1.0, 1.0)):
-    bm = bmesh.new()
-    bmesh.ops.create_uvsphere(bm, u_segments=segments, v_segments=max(8, segments // 2), radius=radius)
-    return _link_object(name, bm, location, smooth=True, material=material, scale=scale)
-
-
-def _cylinder(name, radius, z0, z1, xy, material, segments=24):
-    bm = bmesh.new()
-    bmesh.ops.create_cone(bm, cap_ends=True, cap_tris=False, segments=segments,
-                          radius1=radius, radius2=radius, depth=z1 - z0)
-    return _link_object(name, bm, (xy[0], xy[1], 0.5 * (z0 + z1)), smooth=True, material=material)
-
-
-def _box(name, size, location, material):
-    bm = bmesh.new()
-    bmesh.ops.create_cube(bm, size=1.0)
-    bmesh.ops.scale(bm, vec=size, verts=bm.verts)
-    return _link_object(name, bm, location, material=material)
-
-
-def _quad(name, corners, material):
-    bm = bmesh.new()
-    verts = [bm.verts.new(c) for c in corners]
-    bm.faces.new(verts)
-    return _link_object(name, bm, material=material)
-
-
-class _Mat:
-    """A node material built from a Principled BSDF; small helpers to wire textures into it."""
-
-    def __init__(self, name: str):
-        self.mat = bpy.data.materials.new(name)
-        self.nt = self.mat.node_tree
-        self.nt.nodes.clear()
-        self.out = self.nt.nodes.new("ShaderNodeOutputMaterial")
-        self.bsdf = self.nt.nodes.new("ShaderNodeBsdfPrincipled")
-        self.link(self.bsdf.outputs["BSDF"], self.out.inputs["Surface"])
-
-    def node(self, kind: str, **inputs):
-        n = self.nt.nodes.new(kind)
-        for key, value in inputs.items():
-            n.inputs[key].default_value = value
-        return n
-
-    def link(self, a, b):
-        self.nt.links.new(a, b)
-
-    def coords(self, space: str = "Object", swizzle: str | None = None, scale=None, offset=None):
-        """Texture coordinates; ``swizzle='xz'`` maps world-like (x, z) to the texture's (x, y)."""
-        tc = self.nt.nodes.new("ShaderNodeTexCoord")
-        socket = tc.outputs[space]
-        if swizzle:
-            sep = self.nt.nodes.new("ShaderNodeSeparateXYZ")
-            comb = self.nt.nodes.new("ShaderNodeCombineXYZ")
-            self.link(socket, sep.inputs[0])
-            for i, axis in enumerate(swizzle):
-                self.link(sep.outputs[axis.upper()], comb.inputs[i])
-            socket = comb.outputs[0]
-        if scale is not None or offset is not None:
-            mp = self.nt.nodes.new("ShaderNodeMapping")
-            if scale is not None:
-                mp.inputs["Scale"].default_value = scale
-            if offset is not None:
-                mp.inputs["Location"].default_value = offset
-            self.link(socket, mp.inputs["Vector"])
-            socket = mp.outputs["Vector"]
-        return socket
-
-    def ramp(self, factor_socket, stops):
-        cr = self.nt.nodes.new("ShaderNodeValToRGB")
-        elems = cr.color_ramp.elements
-        while len(elems) < len(stops):
-            elems.new(0.5)
-        for elem, (pos, rgb) in zip(elems, stops):
-            elem.position = pos
-            elem.color = (*rgb, 1.0)
-        self.link(factor_socket, cr.inputs["Fac"])
-        return cr.outputs["Color"]
-
-    def base(self, color_socket_or_rgb, roughness: float = 0.6, specular: float = 0.5):
-        if isinstance(color_socket_or_rgb, tuple):
-            self.bsdf.inputs["Base Color"].default_value = (*color_socket_or_rgb, 1.0)
-        else:
-            self.link(color_socket_or_rgb, self.bsdf.inputs["Base Color"])
-        self.bsdf.inputs["Roughness"].default_value = roughness
-        self.bsdf.inputs["Specular IOR Level"].default_value = specular
-        return self.mat
-
-
-def _emission_material(name: str, rgb, strength: float):
-    mat = bpy.data.materials.new(name)
-    nt = mat.node_tree
-    nt.nodes.clear()
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    em = nt.nodes.new("ShaderNodeEmission")
-    em.inputs["Color"].default_value = (*rgb, 1.0)
-    em.inputs["Strength"].default_value = strength
-    nt.links.new(em.outputs["Emission"], out.inputs["Surface"])
-    # Seen by the camera only: they must not light the scene (fireflies at low sample counts).
-    mat.cycles.emission_sampling = "NONE"
-    return mat
-
-
-def _materials(rng: np.random.Generator) -> dict:
-    m = {}
-
-    skin = _Mat("skin")
-    n = skin.node("ShaderNodeTexNoise", Scale=25.0, Detail=4.0, Roughness=0.6)
-    skin.link(skin.coords("Object", offset=tuple(rng.uniform(0, 100, 3))), n.inputs["Vector"])
-    v = skin.node("ShaderNodeTexVoronoi", Scale=90.0)
-    skin.link(skin.coords("Object"), v.inputs["Vector"])
-    mix = skin.node("ShaderNodeMath")
-    mix.operation = "MULTIPLY_ADD"
-    skin.link(v.outputs["Distance"], mix.inputs[0])
-    mix.inputs[1].default_value = 0.3
-    skin.link(n.outputs["Fac"], mix.inputs[2])
-    m["skin"] = skin.base(skin.ramp(mix.outputs[0], [(0.35, (0.45, 0.24, 0.16)), (0.95, (0.80, 0.55, 0.42))]),
-                          roughness=0.45)
-
-    hair = _Mat("hair")
-    n = hair.node("ShaderNodeTexNoise", Scale=30.0, Detail=5.0, Roughness=0.7)
-    hair.link(hair.coords("Object", scale=(6.0, 6.0, 0.6)), n.inputs["Vector"])
-    m["hair"] = hair.base(hair.ramp(n.outputs["Fac"], [(0.3, (0.03, 0.015, 0.01)), (0.7, (0.28, 0.14, 0.06))]),
-                          roughness=0.35)
-
-    eye = _Mat("eye")
-    m["eye"] = eye.base((0.02, 0.02, 0.025), roughness=0.05, specular=1.0)
-
-    sweater = _Mat("sweater")
-    w = sweater.node("ShaderNodeTexWave", Scale=9.0, Distortion=2.0, Detail=3.0)
-    sweater.link(sweater.coords("Object"), w.inputs["Vector"])
-    c_a = tuple(rng.uniform([0.45, 0.03, 0.05], [0.65, 0.10, 0.12]))
-    m["sweater"] = sweater.base(sweater.ramp(w.outputs["Fac"], [(0.45, c_a), (0.55, (0.75, 0.70, 0.55))]),
-                                roughness=0.8)
-
-    wall = _Mat("wall")
-    b = wall.node("ShaderNodeTexBrick", Scale=1.0, **{"Mortar Size": 0.025, "Brick Width": 0.5,
-                                                      "Row Height": 0.22, "Bias": 0.0})
-    b.offset = 0.5
-    wall.link(wall.coords("Object", swizzle="xz"), b.inputs["Vector"])
-    brick_a = tuple(rng.uniform([0.35, 0.10, 0.06], [0.50, 0.16, 0.10]))
-    brick_b = tuple(rng.uniform([0.20, 0.12, 0.10], [0.32, 0.18, 0.14]))
-    b.inputs["Color1"].default_value = (*brick_a, 1.0)
-    b.inputs["Color2"].default_value = (*brick_b, 1.0)
-    b.inputs["Mortar"].default_value = (0.55, 0.53, 0.50, 1.0)
-    grime = wall.node("ShaderNodeTexNoise", Scale=0.35, Detail=4.0)
-    wall.link(wall.coords("Object", swizzle="xz", offset=tuple(rng.uniform(0, 50, 3))), grime.inputs["Vector"])
-    paint = wall.ramp(grime.outputs["Fac"], [(0.35, (0.35, 0.45, 0.55)), (0.65, (1.0, 1.0, 1.0))])
-    mul = wall.node("ShaderNodeMix")
-    mul.data_type = "RGBA"
-    mul.blend_type = "MULTIPLY"
-    # The Mix node has one socket per data type under the same name: pick the colour ones.
-    rgba_in = {s.name: s for s in mul.inputs if s.type == "RGBA"}
-    mul.inputs["Factor"].default_value = 1.0
-    wall.link(b.outputs["Color"], rgba_in["A"])
-    wall.link(paint, rgba_in["B"])
-    result = next(s for s in mul.outputs if s.type == "RGBA")
-    m["wall"] = wall.base(result, roughness=0.9, specular=0.0)  # matte: cheaper to shade
-
-    floor = _Mat("floor")
-    ck = floor.node("ShaderNodeTexChecker", Scale=1.0)
-    floor.link(floor.coords("Object", scale=(1.2, 1.2, 1.2)), ck.inputs["Vector"])
-    ck.inputs["Color1"].default_value = (0.30, 0.28, 0.25, 1.0)
-    ck.inputs["Color2"].default_value = (0.12, 0.11, 0.10, 1.0)
-    m["floor"] = floor.base(ck.outputs["Color"], roughness=0.7, specular=0.0)
-
-    wood = _Mat("wood")
-    w = wood.node("ShaderNodeTexWave", Scale=3.0, Distortion=6.0, Detail=4.0, **{"Detail Scale": 2.0})
-    w.wave_type = "RINGS"
-    wood.link(wood.coords("Object", scale=(1.0, 1.0, 0.15), offset=tuple(rng.uniform(0, 10, 3))), w.inputs["Vector"])
-    m["wood"] = wood.base(wood.ramp(w.outputs["Fac"], [(0.2, (0.30, 0.15, 0.05)), (0.9, (0.65, 0.42, 0.20))]),
-                          roughness=0.5)
-
-    marble = _Mat("marble")
-    n = marble.node("ShaderNodeTexNoise", Scale=4.0, Detail=6.0, Roughness=0.65, Distortion=3.0)
-    marble.link(marble.coords("Object", offset=tuple(rng.uniform(0, 50, 3))), n.inputs["Vector"])
-    m["marble"] = marble.base(marble.ramp(n.outputs["Fac"], [(0.40, (0.12, 0.22, 0.35)), (0.60, (0.70, 0.75, 0.80))]),
-                              roughness=0.3)
-
-    ball = _Mat("ball")
-    ck = ball.node("ShaderNodeTexChecker", Scale=6.0)
-    ball.link(ball.coords("Generated"), ck.inputs["Vector"])
-    ck.inputs["Color1"].default_value = (0.85, 0.65, 0.05, 1.0)
-    ck.inputs["Color2"].default_value = (0.05, 0.25, 0.55, 1.0)
-    m["ball"] = ball.base(ck.outputs["Color"], roughness=0.35)
-
-    metal = _Mat("pole")
-    n = metal.node("ShaderNodeTexNoise", Scale=60.0, Detail=2.0)
-    metal.link(metal.coords("Object"), n.inputs["Vector"])
-    metal.bsdf.inputs["Metallic"].default_value = 0.7
-    m["pole"] = metal.base(metal.ramp(n.outputs["Fac"], [(0.3, (0.25, 0.27, 0.30)), (0.7, (0.55, 0.56, 0.58))]),
-                           roughness=0.4)
-
-    wire = _Mat("wire")
-    m["wire"] = wire.base((0.015, 0.015, 0.015), roughness=0.5)
-    return m
 
 
 def _build_scene(rng: np.random.Generator) -> tuple[dict, list[_Emitter]]:
@@ -488,104 +279,6 @@ def _overlap(point, radius: float, other: _Emitter) -> bool:
     return False
 
 
-def _aim(obj, target) -> None:
-    from mathutils import Vector
-
-    direction = Vector(target) - Vector(obj.location)
-    obj.rotation_euler = direction.to_track_quat("-Z", "Y").to_euler()
-
-
-def _setup_render(scene, width: int, height: int, samples: int, seed: int, denoise: bool) -> str:
-    scene.render.engine = "CYCLES"
-    cyc = scene.cycles
-    cyc.device = "CPU"
-    cyc.samples = samples
-    cyc.use_adaptive_sampling = False
-    cyc.seed = seed
-    cyc.use_animated_seed = False
-    cyc.max_bounces = 4
-    cyc.diffuse_bounces = 2
-    cyc.glossy_bounces = 2
-    cyc.transmission_bounces = 0
-    cyc.volume_bounces = 0
-    cyc.transparent_max_bounces = 2
-    cyc.caustics_reflective = False
-    cyc.caustics_refractive = False
-    cyc.sample_clamp_indirect = 10.0
-    denoiser = "none"
-    if denoise:
-        import _cycles  # Cycles' own module: tells whether OpenImageDenoise was compiled in
-
-        if getattr(_cycles, "with_openimagedenoise", False):
-            cyc.use_denoising = True
-            cyc.denoiser = "OPENIMAGEDENOISE"
-            cyc.denoising_input_passes = "RGB_ALBEDO_NORMAL"
-            denoiser = "OPENIMAGEDENOISE"
-        else:
-            cyc.use_denoising = False
-    else:
-        cyc.use_denoising = False
-
-    r = scene.render
-    r.resolution_x, r.resolution_y = width, height
-    r.resolution_percentage = 100
-    r.pixel_aspect_x = r.pixel_aspect_y = 1.0
-    r.fps, r.fps_base = FPS, 1.0
-    r.film_transparent = False
-    r.use_motion_blur = False
-    r.dither_intensity = 0.0  # the PNG must be exactly the sRGB encoding of the clipped radiance
-    r.use_persistent_data = True
-    r.use_compositing = False
-    r.use_sequencer = False
-
-    vs = scene.view_settings
-    scene.display_settings.display_device = "sRGB"
-    vs.view_transform = "Standard"
-    vs.look = "None"
-    vs.exposure = 0.0
-    vs.gamma = 1.0
-    vs.use_curve_mapping = False
-    if hasattr(vs, "use_white_balance"):
-        vs.use_white_balance = False
-
-    vl = scene.view_layers[0]
-    vl.use_pass_combined = True
-    vl.use_pass_z = True
-    return denoiser
-
-
-def _set_image_settings(scene, kind: str) -> None:
-    ims = scene.render.image_settings
-    # Blender 5.0: the file_format enum depends on media_type. With MULTI_LAYER_IMAGE the only
-    # item is 'OPEN_EXR_MULTILAYER', so set 'OPEN_EXR' while the media type is still IMAGE.
-    if kind == "exr":
-        ims.media_type = "IMAGE"
-        ims.file_format = "OPEN_EXR"
-        ims.media_type = "MULTI_LAYER_IMAGE"
-        ims.color_depth = "32"
-        ims.exr_codec = "ZIP"
-    else:
-        ims.media_type = "IMAGE"
-        ims.file_format = "PNG"
-        ims.color_mode = "RGB"
-        ims.color_depth = "8"
-        ims.compression = 15
-
-
-def _read_multilayer(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Blender multilayer EXR -> (linear RGB float32 (H, W, 3), Z float32 (H, W))."""
-    chans = read_exr(path)
-
-    def find(suffix):
-        hits = [k for k in chans if k.endswith(suffix)]
-        if not hits:
-            raise OutputError(f"{path}: no channel '*{suffix}' in the render (channels: {sorted(chans)})")
-        return chans[hits[0]]
-
-    rgb = np.dstack([find(f"Combined.{c}") for c in "RGB"])
-    return rgb, find("Depth.Z")
-
-
 def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 216), samples: int = 16,
                       seed: int = 0, progress: bool = True, denoise: bool = True) -> Path:
     """Build the procedural demo scene in a fresh bpy state and render it; returns ``out_dir``.
@@ -614,7 +307,7 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
     _remove_stale_frames(dirs, frames)
     from tqdm import tqdm
 
-    bpy.ops.wm.read_factory_settings(use_empty=True)
+    reset_blender()
     scene = bpy.context.scene
     rng = np.random.default_rng(seed)
     denoiser = _setup_render(scene, width, height, samples, seed, denoise)
@@ -725,25 +418,6 @@ def render_demo_scene(out_dir, frames: int = 24, size: tuple[int, int] = (384, 2
     }
     _atomic(out / "meta.json", ".tmp", lambda tmp: tmp.write_text(json.dumps(meta, indent=2) + "\n"))
     return out
-
-
-def _atomic(path: Path, suffix: str, write) -> None:
-    """Call ``write(tmp)`` on a hidden sibling of ``path``, then rename it onto ``path``."""
-    tmp = temp_sibling(path, suffix)
-    try:
-        write(tmp)
-        if not tmp.is_file():
-            raise OSError("nothing was written")
-        os.replace(tmp, path)
-    except Exception as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"cannot write '{path}': {exc}; check free disk space and write permission") from exc
-
-
-def _working_space() -> str:
-    """The blend file's scene-linear working space (Blender 5.0+; Linear Rec.709 before)."""
-    colorspace = getattr(bpy.data, "colorspace", None)
-    return str(getattr(colorspace, "working_space", "") or "Linear Rec.709")
 
 
 def _remove_stale_frames(dirs: dict, frames: int) -> None:

@@ -1,0 +1,636 @@
+"""Training samples for the RGBD-HDR estimator: harness clips and a user's bracketed photos.
+
+A sample is one deep-DOF input and the large-aperture image(s) our renderer must reproduce
+from it, each with the affine factors ``(alpha, beta)`` of its signed blur radius
+``alpha * D + beta`` (px at the source's native width; DATASET.md "Training sidecar").
+
+**(a) Harness clips** (``sintel_eval/DATASET.md``, format ``rvr-laaf-harness/*``): every folder
+under a dataset root holding such a ``manifest.json`` is a clip. Its ``train/frame_%05d.json``
+sidecars give the input (the pinhole deep-DOF PNG) and the members (``large``, ``mid``,
+``small``, ``focusB``: Cycles renders, 8-bit sRGB PNG, with the exact focus disparity and
+aperture scale of the lens, so ``alpha = a``, ``beta = -a f`` are exact for our renderer).
+A frame is used only when its done marker is valid (exists, carries the manifest's
+``config_hash``, and lists files that exist with their sizes); others are skipped and counted.
+Each draw picks one of the frame's sample kinds with equal probability:
+
+* ``pair``: input -> ``large`` (L_rend counted twice);
+* ``aperture`` triplet: input -> ``large`` + one of the other apertures (``mid`` or ``small``),
+  same focus, disparity *scaled*;
+* ``focal`` triplet: input -> ``large`` + ``focusB``, same aperture, disparity *shifted*.
+
+**(b) A user's aperture-bracketed photos** (a DSLR with Magic Lantern, a phone's "pro" mode):
+a folder of shots, each either flat files ``NAME_small.EXT`` + ``NAME_large.EXT``
+[+ ``NAME_medium.EXT``] [+ ``NAME_focusB.EXT``] [+ ``NAME.json``], or a sub-folder per shot
+holding ``small.EXT``, ``large.EXT`` [, ``medium.EXT``, ``focusB.EXT``, ``shot.json``]; EXT is
+jpg/jpeg/png/tif/tiff (any case). ``small`` is the deep-DOF input (e.g. f/22), ``large`` the
+wide aperture (f/2), ``medium`` a middle aperture (f/8, an aperture triplet), ``focusB`` the wide
+aperture focused elsewhere (a focal triplet). Every other shot is warped onto ``small`` with ECC
+(:mod:`.align`) and the shot is cropped to the pixels all of them cover.
+
+The absolute focus disparity and aperture scale of a user's lens are unknown, and are not
+learnt: by definition ``large`` has ``alpha = 1, beta = 0`` (focus 0: the focal plane of the
+bracket is the disparity origin, and the disparity unit is that lens's blur at the large
+aperture). ``medium`` has ``alpha = N_large / N_medium`` (the ratio of aperture diameters),
+``beta = 0``; the f-numbers come from the optional JSON (``{"f_number": {"small": 22,
+"medium": 8, "large": 2}}``) or else from the EXIF ``FNumber`` of the files. ``focusB`` needs
+its shift in the JSON (``{"focusB": {"alpha": 1.0, "beta": -3.5}}``, beta in px of blur radius at
+the photo's original width); without it the image is not used. A shot with a missing partner
+image or a failed alignment is skipped with a warning and counted (:class:`SkipReport`), never
+stopping the run. Aligned shots are cached (downscaled to ``max_side`` px) in a folder of the
+training run, keyed by the source files' size and mtime.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from ..color import linear_to_srgb, srgb_to_linear
+from ..errors import InputError
+from ..io.paths import natural_key, temp_sibling
+
+log = logging.getLogger(__name__)
+
+HARNESS_FORMAT = "rvr-laaf-harness/"
+PHOTO_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
+PHOTO_ROLES = ("small", "large", "medium", "focusB")
+KINDS = ("pair", "aperture", "focal")
+_SIDECAR = re.compile(r"frame_(\d+)\.json$")
+_FNUMBER_TAG = 0x829D
+_EXIF_IFD = 0x8769
+
+
+# ------------------------------------------------------------------------------ records
+
+
+@dataclass(frozen=True)
+class Member:
+    """One shallow-DOF image of a sample: 8-bit sRGB file, signed radius ``alpha * D + beta`` px
+    (beta at the sample's native width)."""
+
+    path: Path
+    alpha: float
+    beta: float
+
+
+@dataclass(frozen=True)
+class SampleSource:
+    """One training frame or shot: the input, its members by name, and which kinds it supports.
+
+    native_width: width in px of the input file (beta is in px at this width).
+    third: names of the members usable as the third image, by kind (``aperture`` / ``focal``).
+    """
+
+    name: str
+    origin: str  # "harness" or "photos"
+    input: Path
+    members: dict[str, Member]
+    native_width: int
+    third: dict[str, tuple[str, ...]]
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        """The sample kinds this source supports (always ``pair``)."""
+        return ("pair",) + tuple(k for k in ("aperture", "focal") if self.third.get(k))
+
+
+@dataclass
+class TrainSample:
+    """A drawn, resized and cropped sample; arrays are float32 (h, w, 3) sRGB in [0, 1].
+
+    frame_width: width in px of the whole resized frame the crop comes from (D_rel -> px).
+    alpha, beta: the primary target's factors, beta in px at the working resolution.
+    adjusted: (third image, alpha, beta) of a triplet, or None for a pair.
+    """
+
+    name: str
+    kind: str
+    image: np.ndarray
+    target: np.ndarray
+    alpha: float
+    beta: float
+    frame_width: float
+    adjusted: tuple[np.ndarray, float, float] | None = None
+
+
+@dataclass
+class SkipReport:
+    """What was left out and why (counted per reason, messages kept for the log)."""
+
+    counts: Counter = field(default_factory=Counter)
+    messages: list[str] = field(default_factory=list)
+
+    def add(self, reason: str, message: str) -> None:
+        """Count one skipped item under ``reason`` and warn (the first 20 warnings are logged)."""
+        self.counts[reason] += 1
+        self.messages.append(message)
+        if len(self.messages) <= 20:
+            log.warning("%s", message)
+        elif len(self.messages) == 21:
+            log.warning("more skipped items; the total is reported at the end")
+
+    @property
+    def total(self) -> int:
+        return sum(self.counts.values())
+
+    def summary(self) -> str:
+        """One line: 'skipped 3: 2 missing partner, 1 alignment failed' (or 'nothing skipped')."""
+        if not self.counts:
+            return "nothing skipped"
+        parts = ", ".join(f"{n} {reason}" for reason, n in sorted(self.counts.items()))
+        return f"skipped {self.total}: {parts}"
+
+
+# ------------------------------------------------------------------------------ image helpers
+
+
+def read_srgb(path: Path) -> np.ndarray:
+    """An image file -> (H, W, 3) float32 sRGB in [0, 1] (8/16-bit, grey, RGBA handled)."""
+    from ..color import to_float01
+    from ..io.video import read_image_rgb8
+
+    try:
+        return to_float01(read_image_rgb8(path))
+    except Exception as ex:  # VideoOpenError names the file
+        raise InputError(str(ex)) from ex
+
+
+def resize_linear(srgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize an sRGB float image to size (width, height) in linear light (area when shrinking)."""
+    import cv2
+
+    if (srgb.shape[1], srgb.shape[0]) == tuple(size):
+        return srgb
+    interp = cv2.INTER_AREA if size[0] < srgb.shape[1] else cv2.INTER_LINEAR
+    lin = cv2.resize(srgb_to_linear(srgb), size, interpolation=interp)
+    return linear_to_srgb(lin).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------ (a) harness
+
+
+def find_harness_clips(root: str | Path) -> list[Path]:
+    """Every folder at or under ``root`` holding a manifest.json of format ``rvr-laaf-harness/*``.
+
+    Does not descend into a clip. Raises InputError if ``root`` is not a folder.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"Training data folder '{root}' does not exist; pass a folder written by "
+                         "`python -m sintel_eval generate -o DIR` (or a folder of such folders).")
+    clips = []
+    for dirpath, dirnames, filenames in os.walk(root):
+        if "manifest.json" in filenames:
+            try:
+                fmt = json.loads((Path(dirpath) / "manifest.json").read_text()).get("format", "")
+            except (OSError, ValueError, AttributeError):
+                fmt = ""
+            if isinstance(fmt, str) and fmt.startswith(HARNESS_FORMAT):
+                clips.append(Path(dirpath))
+                dirnames[:] = []
+                continue
+        dirnames[:] = [d for d in dirnames if not d.startswith(".")]
+    return sorted(clips, key=natural_key)
+
+
+def _marker_sizes(marker: dict) -> dict[str, int | None]:
+    files = marker.get("files", {})
+    out: dict[str, int | None] = {}
+    if isinstance(files, dict):
+        for k, v in files.items():
+            size = v.get("size", v.get("bytes")) if isinstance(v, dict) else v
+            out[str(k)] = None if size is None else int(size)
+    else:
+        for item in files or []:
+            if isinstance(item, str):
+                out[item] = None
+            elif isinstance(item, dict) and "path" in item:
+                size = item.get("size", item.get("bytes"))
+                out[str(item["path"])] = None if size is None else int(size)
+    return out
+
+
+def frame_complete(clip: Path, frame: int, config_hash: str | None) -> str | None:
+    """None if frame ``frame`` of the clip is complete (DATASET.md), else the reason."""
+    done = clip / "done" / f"frame_{frame:05d}.json"
+    try:
+        marker = json.loads(done.read_text())
+    except FileNotFoundError:
+        return f"done marker {done} is missing"
+    except (OSError, ValueError) as ex:
+        return f"done marker {done} is unreadable ({ex})"
+    if config_hash is not None and marker.get("config_hash") != config_hash:
+        return f"done marker {done} belongs to another configuration"
+    for rel, size in _marker_sizes(marker).items():
+        p = clip / rel
+        if not p.is_file():
+            return f"{p} (listed in {done}) is missing"
+        if size is not None and p.stat().st_size != size:
+            return f"{p} has {p.stat().st_size} bytes, its done marker says {size}"
+    return None
+
+
+def _member(clip: Path, name: str, rec: dict, sidecar: Path) -> Member:
+    try:
+        path = clip / str(rec["png"])
+        alpha, beta = float(rec["alpha"]), float(rec["beta"])
+    except (KeyError, TypeError, ValueError) as ex:
+        raise InputError(f"member {name!r} of {sidecar} lacks png/alpha/beta ({ex})") from None
+    if not (math.isfinite(alpha) and math.isfinite(beta) and alpha > 0):
+        raise InputError(f"member {name!r} of {sidecar} has alpha {alpha}, beta {beta}")
+    if not path.is_file():
+        raise InputError(f"{path} (member {name!r} of {sidecar}) is missing")
+    return Member(path, alpha, beta)
+
+
+def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
+    """Training sources of every harness clip under ``root`` (see the module docstring).
+
+    Incomplete frames and malformed sidecars are skipped and counted in ``report``.
+    Raises InputError when ``root`` holds no harness clip.
+    """
+    clips = find_harness_clips(root)
+    if not clips:
+        raise InputError(f"'{root}' holds no harness clip (no manifest.json of format '{HARNESS_FORMAT}...' in it "
+                         "or its sub-folders); generate clips with `python -m sintel_eval generate -o DIR`.")
+    sources: list[SampleSource] = []
+    for clip in clips:
+        manifest = json.loads((clip / "manifest.json").read_text())
+        config_hash = manifest.get("config_hash")
+        width = int((manifest.get("config") or {}).get("width") or 0) or None
+        train = clip / "train"
+        sidecars = sorted((p for p in train.glob("frame_*.json") if _SIDECAR.search(p.name)), key=natural_key) \
+            if train.is_dir() else []
+        if not sidecars:
+            report.add("clip without training frames", f"clip {clip} has no train/frame_*.json sidecars; skipped")
+            continue
+        for sidecar in sidecars:
+            frame = int(_SIDECAR.search(sidecar.name).group(1))
+            reason = frame_complete(clip, frame, config_hash)
+            if reason:
+                report.add("incomplete frame", f"training frame {frame} of {clip} is incomplete ({reason}); skipped")
+                continue
+            try:
+                sources.append(_harness_source(clip, frame, sidecar, width))
+            except (InputError, OSError, ValueError) as ex:
+                report.add("bad sidecar", f"training frame {frame} of {clip}: {ex}; skipped")
+    return sources
+
+
+def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None) -> SampleSource:
+    rec = json.loads(sidecar.read_text())
+    inp = clip / str(rec.get("input", f"input/frame_{frame:05d}.png"))
+    if not inp.is_file():
+        raise InputError(f"input {inp} is missing")
+    raw = rec.get("members") or {}
+    if "large" not in raw:
+        raise InputError(f"{sidecar} has no 'large' member")
+    members = {name: _member(clip, name, m, sidecar) for name, m in raw.items() if isinstance(m, dict)}
+    aperture = tuple(n for n in (rec.get("aperture_triplet") or []) if n in members and n != "large")
+    focal = tuple(n for n in (rec.get("focal_triplet") or []) if n in members and n != "large")
+    width = width or _image_width(inp)
+    return SampleSource(f"{clip.name}/frame_{frame:05d}", "harness", inp, members, width,
+                        {"aperture": aperture, "focal": focal})
+
+
+def _image_width(path: Path) -> int:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"{path} is not a readable image")
+    return int(img.shape[1])
+
+
+# ------------------------------------------------------------------------------ (b) user photos
+
+
+@dataclass(frozen=True)
+class PhotoShot:
+    """The files of one bracketed shot (roles small/large/medium/focusB) and its optional JSON."""
+
+    name: str
+    files: dict[str, Path]
+    settings: Path | None
+
+
+def _role_of(stem: str) -> tuple[str, str] | None:
+    for role in PHOTO_ROLES:
+        suffix = "_" + role
+        if stem.lower().endswith(suffix.lower()) and len(stem) > len(suffix):
+            return stem[: -len(suffix)], role
+    return None
+
+
+def find_photo_shots(folder: str | Path, report: SkipReport) -> list[PhotoShot]:
+    """Shots of a bracketed-photo folder (naming in the module docstring).
+
+    A shot without both ``small`` and ``large`` is skipped and counted as "missing partner".
+    Raises InputError when the folder does not exist or holds no recognisable image.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"Photo folder '{folder}' does not exist; pass a folder of NAME_small.jpg + NAME_large.jpg "
+                         "pairs (or one sub-folder per shot holding small.jpg and large.jpg).")
+    groups: dict[str, dict[str, Path]] = {}
+    settings: dict[str, Path] = {}
+    for entry in sorted(folder.iterdir(), key=natural_key):
+        if entry.name.startswith("."):
+            continue
+        if entry.is_dir():
+            files = {}
+            for f in entry.iterdir():
+                if f.is_file() and f.suffix.lower() in PHOTO_EXTENSIONS and f.stem in PHOTO_ROLES:
+                    files[f.stem] = f
+            if files:
+                groups[entry.name] = files
+                if (entry / "shot.json").is_file():
+                    settings[entry.name] = entry / "shot.json"
+            continue
+        if entry.suffix.lower() == ".json":
+            settings[entry.stem] = entry
+            continue
+        if entry.suffix.lower() not in PHOTO_EXTENSIONS:
+            continue
+        parsed = _role_of(entry.stem)
+        if parsed is None:
+            report.add("unrecognised file", f"'{entry}' is not named NAME_small/_large/_medium/_focusB; ignored")
+            continue
+        name, role = parsed
+        groups.setdefault(name, {})[role] = entry
+    if not groups:
+        raise InputError(f"'{folder}' holds no bracketed photos: expected NAME_small.jpg + NAME_large.jpg "
+                         "(or sub-folders with small.jpg and large.jpg).")
+    shots = []
+    for name, files in groups.items():
+        missing = [r for r in ("small", "large") if r not in files]
+        if missing:
+            have = ", ".join(str(p) for p in files.values())
+            report.add("missing partner", f"shot '{name}' in {folder} has no {' or '.join(missing)} image "
+                                          f"(found {have}); skipped")
+            continue
+        shots.append(PhotoShot(name, files, settings.get(name)))
+    return shots
+
+
+def exif_f_number(path: Path) -> float | None:
+    """FNumber from a photo's EXIF (None when absent or unreadable)."""
+    try:
+        from PIL import Image
+
+        with Image.open(path) as img:
+            value = img.getexif().get_ifd(_EXIF_IFD).get(_FNUMBER_TAG)
+        value = float(value) if value is not None else None
+    except Exception:  # noqa: BLE001 - EXIF is optional metadata
+        return None
+    return value if value and math.isfinite(value) and value > 0 else None
+
+
+def _shot_settings(shot: PhotoShot) -> dict:
+    if shot.settings is None:
+        return {}
+    try:
+        data = json.loads(shot.settings.read_text())
+    except (OSError, ValueError) as ex:
+        raise InputError(f"settings {shot.settings} are not readable JSON ({ex})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"settings {shot.settings} must be a JSON object")
+    return data
+
+
+def _fingerprint(shot: PhotoShot, max_side: int, motion: str) -> str:
+    h = hashlib.sha256(f"{max_side}|{motion}|v1".encode())
+    for role in sorted(shot.files):
+        st = shot.files[role].stat()
+        h.update(f"{role}|{shot.files[role].name}|{st.st_size}|{st.st_mtime_ns}".encode())
+    if shot.settings is not None:
+        h.update(shot.settings.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _write_png(path: Path, srgb: np.ndarray) -> None:
+    import cv2
+
+    from ..color import to_uint8
+
+    tmp = temp_sibling(path, ".png")
+    if not cv2.imwrite(str(tmp), cv2.cvtColor(to_uint8(srgb), cv2.COLOR_RGB2BGR)):
+        raise OSError(f"cannot write {path}")
+    os.replace(tmp, path)
+
+
+def prepare_shot(shot: PhotoShot, cache: Path, max_side: int = 1024, motion: str = "homography",
+                 report: SkipReport | None = None) -> SampleSource | None:
+    """Align one shot onto its small-aperture image, cache it, return its SampleSource.
+
+    Returns None (and counts the reason in ``report``) when alignment fails or a file is
+    unreadable. A cached result with the same fingerprint is reused.
+    """
+    from .align import AlignmentError, ecc_align, inner_rectangle, warp_to_reference
+
+    report = report if report is not None else SkipReport()
+    out = cache / re.sub(r"[^A-Za-z0-9_.-]", "_", shot.name)
+    try:
+        fp = _fingerprint(shot, max_side, motion)
+        meta_path = out / "shot.json"
+        if meta_path.is_file():
+            meta = json.loads(meta_path.read_text())
+            if meta.get("fingerprint") == fp and all((out / f"{r}.png").is_file() for r in meta["members"]):
+                return _photo_source(shot.name, out, meta)
+        settings = _shot_settings(shot)
+        images = {role: read_srgb(p) for role, p in shot.files.items()}
+    except (InputError, OSError, ValueError, KeyError) as ex:
+        report.add("unreadable shot", f"shot '{shot.name}': {ex}; skipped")
+        return None
+    small = images["small"]
+    orig_w = small.shape[1]
+    scale = min(1.0, max_side / max(small.shape[:2]))
+    size = (max(int(round(small.shape[1] * scale)), 1), max(int(round(small.shape[0] * scale)), 1))
+    for role, img in images.items():
+        if img.shape[:2] != small.shape[:2]:
+            report.add("size mismatch", f"shot '{shot.name}': {shot.files[role]} is {img.shape[1]}x{img.shape[0]}, "
+                                        f"the small-aperture image {small.shape[1]}x{small.shape[0]}; skipped")
+            return None
+        images[role] = resize_linear(img, size)
+    valid = np.ones(images["small"].shape[:2], dtype=bool)
+    ccs = {}
+    for role in ["large"] + [r for r in images if r not in ("small", "large")]:
+        try:
+            al = ecc_align(images["small"], images[role], motion=motion)
+        except AlignmentError as ex:
+            what = "skipped" if role == "large" else f"its {role} image is not used"
+            report.add("alignment failed", f"shot '{shot.name}': aligning {shot.files[role].name} to "
+                                           f"{shot.files['small'].name} failed ({ex}); {what}")
+            if role == "large":
+                return None
+            del images[role]
+            continue
+        images[role], ok = warp_to_reference(images[role], al, size)
+        valid &= ok
+        ccs[role] = round(al.cc, 4)
+    y0, y1, x0, x1 = inner_rectangle(valid)
+    if (y1 - y0) * (x1 - x0) < 0.5 * valid.size:
+        report.add("alignment failed", f"shot '{shot.name}': the aligned shots overlap on less than half the frame; "
+                                       "skipped")
+        return None
+    members = {r: v for r, v in _photo_members(shot, settings, report).items() if r in images}
+    meta = {"fingerprint": fp, "name": shot.name, "sources": {r: str(p) for r, p in shot.files.items()},
+            "original_width": orig_w, "width": x1 - x0, "height": y1 - y0, "scale": scale, "ecc_cc": ccs,
+            "members": {}}
+    for role, (alpha, beta_orig) in members.items():
+        meta["members"][role] = {"alpha": alpha, "beta": beta_orig * scale}
+    out.mkdir(parents=True, exist_ok=True)
+    for role in ["small", *members]:
+        _write_png(out / f"{role}.png", images[role][y0:y1, x0:x1])
+    tmp = temp_sibling(meta_path, ".json")
+    tmp.write_text(json.dumps(meta, indent=1))
+    os.replace(tmp, meta_path)
+    return _photo_source(shot.name, out, meta)
+
+
+def _photo_members(shot: PhotoShot, settings: dict, report: SkipReport) -> dict[str, tuple[float, float]]:
+    """{role: (alpha, beta in px at the original width)} of the usable members (large always)."""
+    members = {"large": (1.0, 0.0)}
+    f_numbers = dict(settings.get("f_number") or {})
+    if "medium" in shot.files:
+        n_large = f_numbers.get("large") or exif_f_number(shot.files["large"])
+        n_medium = f_numbers.get("medium") or exif_f_number(shot.files["medium"])
+        if n_large and n_medium and float(n_medium) > 0:
+            members["medium"] = (float(n_large) / float(n_medium), 0.0)
+        else:
+            report.add("medium without f-numbers", f"shot '{shot.name}': the f-numbers of the large and medium "
+                                                   "apertures are unknown (no EXIF FNumber, no f_number in the JSON); "
+                                                   "its medium image is not used")
+    if "focusB" in shot.files:
+        rel = settings.get("focusB") or {}
+        if isinstance(rel, dict) and "beta" in rel:
+            members["focusB"] = (float(rel.get("alpha", 1.0)), float(rel["beta"]))
+        else:
+            report.add("focusB without shift", f"shot '{shot.name}': focusB needs its blur shift in the JSON "
+                                               '({"focusB": {"beta": px}}); its focusB image is not used')
+    return members
+
+
+def _photo_source(name: str, out: Path, meta: dict) -> SampleSource:
+    members = {role: Member(out / f"{role}.png", float(m["alpha"]), float(m["beta"]))
+               for role, m in meta["members"].items()}
+    third = {"aperture": ("medium",) if "medium" in members else (), "focal": ("focusB",) if "focusB" in members else ()}
+    return SampleSource(f"photos/{name}", "photos", out / "small.png", members, int(meta["width"]), third)
+
+
+def photo_sources(folder: str | Path, cache: Path, report: SkipReport, max_side: int = 1024,
+                  motion: str = "homography", progress: bool = False) -> list[SampleSource]:
+    """Align (or reuse from ``cache``) every shot of a bracketed-photo folder."""
+    from tqdm import tqdm
+
+    shots = find_photo_shots(folder, report)
+    sources = []
+    for shot in tqdm(shots, desc="align photos", unit="shot", disable=not progress):
+        src = prepare_shot(shot, cache, max_side=max_side, motion=motion, report=report)
+        if src is not None:
+            sources.append(src)
+    return sources
+
+
+# ------------------------------------------------------------------------------ drawing samples
+
+
+@dataclass(frozen=True)
+class Augment:
+    """Random resize (relative to the stored size) and crop of training samples.
+
+    crop: side of the square crop in px (the whole frame when it is smaller).
+    scale_range: resize factors drawn uniformly (clamped so the crop still fits).
+    flip: random horizontal flip (disparity is unchanged by a mirror).
+    """
+
+    crop: int = 128
+    scale_range: tuple[float, float] = (0.5, 1.0)
+    flip: bool = True
+
+
+class TrainingSet:
+    """Draws :class:`TrainSample` s from sources; unreadable files are skipped and counted."""
+
+    def __init__(self, sources: Iterable[SampleSource], augment: Augment = Augment(),
+                 report: SkipReport | None = None) -> None:
+        self.sources = list(sources)
+        if not self.sources:
+            raise InputError("no usable training samples: every frame/shot was skipped (see the warnings above)")
+        self.augment = augment
+        self.report = report if report is not None else SkipReport()
+        self._bad: set[str] = set()
+
+    def __len__(self) -> int:
+        return len(self.sources)
+
+    def summary(self) -> dict:
+        """Counts for the weights header: sources by origin, sample kinds available, skips."""
+        by_origin = Counter(s.origin for s in self.sources)
+        kinds = Counter(k for s in self.sources for k in s.kinds)
+        clips = sorted({s.name.split("/")[0] for s in self.sources if s.origin == "harness"})
+        return {"harness_frames": by_origin.get("harness", 0), "harness_clips": len(clips),
+                "photo_shots": by_origin.get("photos", 0), "kinds": dict(kinds),
+                "skipped": dict(self.report.counts)}
+
+    def draw(self, rng: np.random.Generator, retries: int = 20) -> TrainSample:
+        """A random sample (uniform over sources, then over the source's kinds)."""
+        for _ in range(retries):
+            src = self.sources[int(rng.integers(len(self.sources)))]
+            if src.name in self._bad:
+                continue
+            try:
+                return self.make(src, rng)
+            except (InputError, OSError, ValueError) as ex:
+                self._bad.add(src.name)
+                self.report.add("unreadable sample", f"training sample {src.name}: {ex}; left out from now on")
+        raise InputError("could not read a training sample in 20 tries; see the warnings above")
+
+    def make(self, src: SampleSource, rng: np.random.Generator) -> TrainSample:
+        """Load, resize, crop and flip one sample of ``src`` (kind drawn from its kinds)."""
+        kinds = src.kinds
+        kind = kinds[int(rng.integers(len(kinds)))]
+        names = ["large"]
+        if kind != "pair":
+            options = src.third[kind]
+            names.append(options[int(rng.integers(len(options)))])
+        image = read_srgb(src.input)
+        members = [read_srgb(src.members[n].path) for n in names]
+        for n, m in zip(names, members):
+            if m.shape != image.shape:
+                raise InputError(f"{src.members[n].path} is {m.shape[1]}x{m.shape[0]} but the input "
+                                 f"{src.input} is {image.shape[1]}x{image.shape[0]}")
+        h, w = image.shape[:2]
+        aug = self.augment
+        lo, hi = aug.scale_range
+        lo = max(lo, min(aug.crop / min(h, w), 1.0))
+        hi = max(hi, lo)
+        s = float(rng.uniform(lo, hi)) if hi > lo else hi
+        size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+        frame_width = float(size[0])
+        px_scale = frame_width / src.native_width
+        ch, cw = min(aug.crop, size[1]), min(aug.crop, size[0])
+        y0 = int(rng.integers(size[1] - ch + 1))
+        x0 = int(rng.integers(size[0] - cw + 1))
+        flip = aug.flip and bool(rng.integers(2))
+
+        def prep(img: np.ndarray) -> np.ndarray:
+            out = resize_linear(img, size)[y0:y0 + ch, x0:x0 + cw]
+            return np.ascontiguousarray(out[:, ::-1] if flip else out, dtype=np.float32)
+
+        large = src.members["large"]
+        adjusted = None
+        if kind != "pair":
+            third = src.members[names[1]]
+            adjusted = (prep(members[1]), third.alpha, third.beta * px_scale)
+        return TrainSample(src.name, kind, prep(image), prep(members[0]), large.alpha, large.beta * px_scale,
+                           frame_width, adjusted)

@@ -1,0 +1,379 @@
+"""Inference: D and E per frame of a clip into the per-clip cache (``rvr estimate``).
+
+:class:`Estimator` is the pure per-frame core (uint8 RGB frame -> D in DESIGN units, E);
+:class:`EstimateJob` streams a clip through it (``iter_frames``; nothing but the current
+frame is held), skips frames the cache already holds for the same model and source,
+writes the rest (:mod:`.cache`), and exposes ``step()`` / ``progress`` / ``cancel()`` like
+:class:`rvr_addon.pipeline.RenderJob`.
+
+Depth from elsewhere (``--depth``): a per-frame depth or disparity sequence (EXR/PNG/NPY, a
+phone's depth map, LiDAR, another network) replaces the network's D. Its values ``v`` are
+mapped to our disparity units by ``D = scale * g(v) + offset``, ``g(v) = v`` (disparity-like
+maps) or ``g(v) = 1 / v`` (``--depth-is-distance``: metric or relative distance, whose inverse
+is affine in disparity for a thin lens), with ``scale``/``offset`` given (``--depth-scale``,
+``--depth-offset``) or fitted to two reference points (``--depth-points x1,y1,d1 x2,y2,d2``):
+pixel (x, y) of the first frame of the range should have disparity d (DESIGN units, px of
+blur at aperture 1 at the native width, + = behind the focal plane). ``g`` is read at each
+point as the median over a 5x5 px window (robust to an edge or a noisy pixel), and the two
+equations ``d_i = scale * g_i + offset`` are solved exactly. E still comes from the network
+(or is 0 everywhere with ``--no-hdr``).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from .. import __version__
+from ..errors import InputError
+
+log = logging.getLogger(__name__)
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+SHIPPED_WEIGHTS = WEIGHTS_DIR / "estimator.pt"
+DEFAULT_MAX_PIXELS = 1920 * 1088
+"""Frames with more pixels run the network on a copy shrunk to this many pixels; D is still
+sliced and E gated at full resolution."""
+NO_WEIGHTS_HELP = (
+    "no trained estimator weights are shipped with this version of rvr yet. Train them on "
+    "harness clips (`python -m sintel_eval generate ... -o DATA/clip1`, then "
+    "`rvr train --data DATA -o RUN`) and pass `--weights RUN/estimator.pt`; or bring depth from "
+    "elsewhere with `--depth MAPS` and `--no-hdr`."
+)
+
+
+def default_weights() -> Path:
+    """The weights shipped in the package; InputError explaining how to train them if absent."""
+    if SHIPPED_WEIGHTS.is_file():
+        return SHIPPED_WEIGHTS
+    raise InputError(f"{NO_WEIGHTS_HELP} (looked for {SHIPPED_WEIGHTS})")
+
+
+@dataclass
+class LoadedModel:
+    """A network ready for inference, its header and the SHA-256 (first 16 hex) of its file."""
+
+    net: object
+    header: dict
+    model_hash: str
+    path: Path
+
+
+def load_estimator(path: str | Path) -> LoadedModel:
+    """Load an exported weights file (or a training checkpoint) with ``weights_only=True``.
+
+    Raises InputError naming the file when it is missing, corrupt, or not estimator weights.
+    """
+    import torch
+
+    from .train import CHECKPOINT_FORMAT, WEIGHTS_FORMAT
+    from .unet import EstimatorConfig, EstimatorNet
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"estimator weights '{path}' not found; give the estimator.pt written by `rvr train` "
+                         "(RUN_DIR/estimator.pt)")
+    data = path.read_bytes()
+    digest = hashlib.sha256(data).hexdigest()[:16]
+    try:
+        obj = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as ex:
+        raise InputError(f"estimator weights '{path}' cannot be read ({type(ex).__name__}: {ex}); the file is corrupt "
+                         "or not a torch file. Re-export it (rvr train ... --resume writes estimator.pt at the end) "
+                         "or copy it again.") from ex
+    fmt = obj.get("format") if isinstance(obj, dict) else None
+    try:
+        if fmt == WEIGHTS_FORMAT:
+            header = json.loads(obj["header"])
+            state, cfg = obj["state_dict"], header["config"]
+        elif fmt == CHECKPOINT_FORMAT:
+            cfg = json.loads(obj["model_config"])
+            state = obj["model"]
+            header = {"format": fmt, "config": cfg, "iterations": int(obj["iteration"]), "source": "checkpoint"}
+        else:
+            raise InputError(f"'{path}' is not an estimator weights file (format {fmt!r}, expected "
+                             f"{WEIGHTS_FORMAT!r}); give the estimator.pt written by `rvr train`")
+        net = EstimatorNet(EstimatorConfig.from_dict(cfg))
+        net.load_state_dict(state)
+    except InputError:
+        raise
+    except Exception as ex:
+        raise InputError(f"estimator weights '{path}' do not fit this version's network ({type(ex).__name__}: "
+                         f"{ex}); re-train or use the rvr version that wrote them") from ex
+    net.eval()
+    return LoadedModel(net, header, digest, path)
+
+
+class Estimator:
+    """Per-frame RGBD-HDR inference (the pure core of ``rvr estimate``).
+
+    model: a :class:`LoadedModel`. max_pixels: frames larger than this run the network on a
+    shrunk copy (linear-light area resampling); the grid is sliced with the full-resolution
+    luma and E is gated at full resolution, so edges stay sharp.
+    """
+
+    def __init__(self, model: LoadedModel, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+        self.model = model
+        self.max_pixels = int(max_pixels)
+
+    def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """frame: (H, W, 3) uint8 sRGB. Returns (D (H, W) float32 in px of blur radius at
+        aperture 1 at this width (DESIGN units), E (H, W, 3) float32 (eq. 3, >= 0))."""
+        import cv2
+        import torch
+
+        from ..color import linear_to_srgb, srgb_to_linear, to_float01
+        from .unet import disparity_to_px
+
+        if frame.ndim != 3 or frame.shape[2] != 3:
+            raise InputError(f"the estimator takes (H, W, 3) RGB frames, got shape {frame.shape}")
+        h, w = frame.shape[:2]
+        srgb = to_float01(frame)
+        full = torch.from_numpy(np.ascontiguousarray(srgb)).permute(2, 0, 1)[None]
+        small = full
+        if h * w > self.max_pixels:
+            s = (self.max_pixels / (h * w)) ** 0.5
+            size = (max(int(w * s), 1), max(int(h * s), 1))
+            shrunk = linear_to_srgb(cv2.resize(srgb_to_linear(srgb), size, interpolation=cv2.INTER_AREA))
+            small = torch.from_numpy(np.ascontiguousarray(shrunk, dtype=np.float32)).permute(2, 0, 1)[None]
+        with torch.inference_mode():
+            out = self.model.net(small, guide_srgb=full if small is not full else None)
+            d = disparity_to_px(out.disparity_rel, float(w))[0, 0].numpy()
+            e = out.exponent[0].permute(1, 2, 0).numpy()
+        return np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(e, dtype=np.float32)
+
+
+# ------------------------------------------------------------------------------ external depth
+
+
+def parse_point(text: str) -> tuple[float, float, float]:
+    """'x,y,d' -> (x, y, d): pixel coordinates (px, origin top-left) and disparity (DESIGN units)."""
+    try:
+        x, y, d = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"depth point {text!r} must be x,y,d (e.g. 320,200,0 for a pixel in focus)") from None
+    if not all(np.isfinite((x, y, d))):
+        raise InputError(f"depth point {text!r} has a non-finite value")
+    return x, y, d
+
+
+def sample_window(array: np.ndarray, x: float, y: float, radius: int = 2) -> float:
+    """Median of the (2 radius + 1)^2 window around pixel (x, y) (clipped to the map)."""
+    h, w = array.shape[:2]
+    col, row = int(np.clip(np.floor(x), 0, w - 1)), int(np.clip(np.floor(y), 0, h - 1))
+    win = array[max(row - radius, 0):row + radius + 1, max(col - radius, 0):col + radius + 1]
+    return float(np.median(win))
+
+
+def fit_two_points(values: Sequence[float], disparities: Sequence[float]) -> tuple[float, float]:
+    """(scale, offset) with ``d_i = scale * v_i + offset`` through two points exactly."""
+    (v1, v2), (d1, d2) = values, disparities
+    if abs(v1 - v2) <= 1e-9 * max(abs(v1), abs(v2), 1.0):
+        raise InputError(f"the two depth points read the same map value ({v1:g}); pick points at different "
+                         "depths (e.g. one on the subject, one on the background)")
+    scale = (d1 - d2) / (v1 - v2)
+    return scale, d1 - scale * v1
+
+
+@dataclass
+class DepthSource:
+    """External depth/disparity maps converted to DESIGN units: ``scale * g(raw) + offset``."""
+
+    path: Path
+    scale: float = 1.0
+    offset: float = 0.0
+    inverse: bool = False
+    points: list[tuple[float, float, float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        from ..io.maps import open_map_sequence
+
+        self.maps = open_map_sequence(self.path, kind="disparity")
+
+    def transform(self, raw: np.ndarray) -> np.ndarray:
+        """g(raw) (1 / raw for distances; non-positive distances become the nearest valid value)."""
+        if not self.inverse:
+            return raw
+        from ..io.maps import fill_nonfinite
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.where(raw > 0, 1.0 / raw, np.nan).astype(np.float32)
+        if not np.isfinite(inv).any():
+            raise InputError(f"depth maps '{self.path}' hold no positive distance; drop --depth-is-distance if they "
+                             "are disparities")
+        return fill_nonfinite(inv)[0]
+
+    def fit(self, first_index: int, size: tuple[int, int]) -> None:
+        """Fit scale/offset to the two points on frame ``first_index`` (size: (w, h) of the frame)."""
+        if not self.points:
+            return
+        if len(self.points) != 2:
+            raise InputError(f"--depth-points takes exactly two points x,y,d, got {len(self.points)}")
+        g = self.transform(self.maps.get(first_index if len(self.maps) > 1 else 0, size=size))
+        for x, y, _ in self.points:
+            if not (0 <= x < size[0] and 0 <= y < size[1]):
+                raise InputError(f"depth point ({x:g}, {y:g}) lies outside the {size[0]}x{size[1]} frame")
+        values = [sample_window(g, x, y) for x, y, _ in self.points]
+        self.scale, self.offset = fit_two_points(values, [d for _, _, d in self.points])
+        log.info("depth fitted to two points: D = %.6g * %s + %.6g", self.scale, "1/depth" if self.inverse else "map",
+                 self.offset)
+
+    def get(self, index: int, size: tuple[int, int]) -> np.ndarray:
+        """D (H, W) float32 in DESIGN units for clip index ``index``."""
+        raw = self.maps.get(index if len(self.maps) > 1 else 0, size=size)
+        return (self.transform(raw) * np.float32(self.scale) + np.float32(self.offset)).astype(np.float32)
+
+    def describe(self) -> dict:
+        """JSON record for the cache key (path, files fingerprint, the affine used)."""
+        from .cache import source_fingerprint
+        from ..io.maps import MAP_EXTENSIONS
+
+        return {"path": str(self.path), "hash": source_fingerprint(self.path, MAP_EXTENSIONS)["hash"],
+                "inverse": self.inverse, "scale": self.scale, "offset": self.offset,
+                "points": [list(p) for p in self.points]}
+
+
+# ------------------------------------------------------------------------------ the job
+
+
+@dataclass
+class EstimateSettings:
+    """What ``rvr estimate`` takes. weights None = the shipped weights (an error until they exist)."""
+
+    input: Path
+    output: Path
+    weights: Path | None = None
+    depth: Path | None = None
+    depth_scale: float = 1.0
+    depth_offset: float = 0.0
+    depth_points: list[tuple[float, float, float]] = field(default_factory=list)
+    depth_is_distance: bool = False
+    no_hdr: bool = False
+    start: int = 0
+    stop: int | None = None
+    fps: float | None = None
+    max_pixels: int = DEFAULT_MAX_PIXELS
+
+
+class EstimateJob:
+    """Stream a clip through the estimator into its cache (see the module docstring)."""
+
+    def __init__(self, settings: EstimateSettings) -> None:
+        from ..io.video import probe_clip
+        from .cache import CACHE_FORMAT, ClipCache, source_fingerprint
+
+        s = self.settings = settings
+        if s.no_hdr and s.depth is None:
+            raise InputError("--no-hdr needs --depth: without external depth the network is what estimates D")
+        if s.depth_points and (s.depth_scale != 1.0 or s.depth_offset != 0.0):
+            raise InputError("give either --depth-points or --depth-scale/--depth-offset, not both")
+        self.clip = probe_clip(s.input, fps=s.fps)
+        stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
+        if s.start < 0 or s.start >= stop:
+            raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} ({self.clip.frame_count} frames)")
+        self.start, self.stop, self.total = s.start, stop, stop - s.start
+        size = (self.clip.width, self.clip.height)
+        self.depth: DepthSource | None = None
+        if s.depth is not None:
+            self.depth = DepthSource(Path(s.depth), s.depth_scale, s.depth_offset, s.depth_is_distance,
+                                     list(s.depth_points))
+            self.depth.maps.check_length(stop)
+            self.depth.fit(self.start, size)
+        self.model: LoadedModel | None = None
+        if not s.no_hdr:
+            self.model = load_estimator(s.weights if s.weights is not None else default_weights())
+        self.estimator = Estimator(self.model, s.max_pixels) if self.model is not None else None
+        model_hash = self.model.model_hash if self.model is not None else "none"
+        source = source_fingerprint(s.input)
+        key = {"format": CACHE_FORMAT, "engine_version": __version__, "model_hash": model_hash,
+               "source_hash": source["hash"], "resolution": list(size),
+               "depth": self.depth.describe() if self.depth is not None else "network"}
+        info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
+                "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network"}
+        self.cache = ClipCache(s.output, key, info)
+        self.done = self.computed = self.reused = 0
+        self.text = f"estimating {self.total} frames of {self.clip.path.name}"
+        self._frames = None
+        self._finished = False
+
+    def _model_info(self) -> dict | None:
+        if self.model is None:
+            return None
+        h = self.model.header
+        return {"path": str(self.model.path), "hash": self.model.model_hash, "iterations": h.get("iterations"),
+                "config": h.get("config"), "engine_version": h.get("engine_version")}
+
+    @property
+    def progress(self) -> float:
+        """Fraction of the range done (computed or reused), 0..1."""
+        return self.done / self.total if self.total else 1.0
+
+    def step(self) -> bool:
+        """Process the next frame; False once the range is done."""
+        from ..io.video import iter_frames
+
+        if self._finished:
+            return False
+        if self._frames is None:
+            self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
+        frame = next(self._frames, None)
+        if frame is None:
+            if self.done < self.total:
+                self._close()
+                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
+            self._close()
+            return False
+        index = self.start + self.done
+        size = (frame.shape[1], frame.shape[0])
+        if self.cache.is_valid(index, size):
+            self.reused += 1
+        else:
+            self.cache.write(index, *self.compute(frame, index))
+            self.computed += 1
+        self.done += 1
+        if self.done >= self.total:
+            self._close()
+            return False
+        return True
+
+    def compute(self, frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """(D, E) of one frame: network and/or external depth."""
+        h, w = frame.shape[:2]
+        d = e = None
+        if self.estimator is not None:
+            d, e = self.estimator(frame)
+        if self.depth is not None:
+            d = self.depth.get(index, (w, h))
+        if e is None:
+            e = np.zeros((h, w, 3), np.float32)
+        return d, e
+
+    def _close(self) -> None:
+        if self._frames is not None:
+            self._frames.close()
+        self.cache.flush()
+        self._finished = True
+        self.text = f"estimated {self.computed} frames, reused {self.reused} from the cache"
+
+    def cancel(self) -> None:
+        """Stop; frames written so far stay valid in the cache (meta.json is flushed)."""
+        self._close()
+        self.text = f"cancelled after {self.done} of {self.total} frames"
+
+    def run(self, progress: bool = True) -> None:
+        """Run to the end with a tqdm bar; Ctrl-C flushes the cache, then re-raises."""
+        from tqdm import tqdm
+
+        with tqdm(total=self.total, unit="frame", desc="estimate", disable=not progress) as bar:
+            try:
+                while self.step():
+                    bar.update(1)
+                bar.update(self.total - bar.n)
+            except BaseException:
+                self.cancel()
+                raise

@@ -1,0 +1,116 @@
+"""The ``generate`` sub-command of ``python -m sintel_eval`` (one ground-truth clip).
+
+    python -m sintel_eval generate --seed K [--frames N] [--size WxH] [--script NAME] [--samples S]
+                                   [--dof-samples S] [--train-samples S] [--f-numbers L,M,S] [--train-every N]
+                                   [--pull-frames N] [--no-denoise] [--force] [-q] -o DIR
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a size: write WxH, e.g. 320x180") from None
+    if w < 16 or h < 9:
+        raise argparse.ArgumentTypeError(f"size {w}x{h} is too small: use at least 16x9")
+    return w, h
+
+
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
+    return value
+
+
+def _non_negative(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value} must be 0 (none) or more")
+    return value
+
+
+def _f_numbers(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a list of f-numbers: write LARGE,MID,SMALL, "
+                                         "e.g. 1.0,2.8,8.0") from None
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"'{text}': give exactly three f-numbers LARGE,MID,SMALL, e.g. 1.0,2.8,8.0")
+    return values  # type: ignore[return-value]
+
+
+def add_parser(sub) -> argparse.ArgumentParser:
+    """Register ``generate`` on the sub-parsers of the harness CLI."""
+    gen = sub.add_parser("generate", help="generate one ground-truth clip (format: sintel_eval/DATASET.md)",
+                         description="Generate a seeded animated scene with Cycles: the deep-DOF input (PNG + "
+                                     "MP4 with audio), exact disparity and HDR, Cycles' own shallow DOF for a "
+                                     "constant and a rack focus track, training aperture/focal triplets, events "
+                                     "and a manifest (sintel_eval/DATASET.md). Re-running the same command "
+                                     "resumes an interrupted run.")
+    gen.add_argument("-o", "--out", required=True, metavar="DIR", help="clip folder (created if missing)")
+    gen.add_argument("--seed", required=True, metavar="K", help="scene seed: a whole number (decimal or 0x-hex)")
+    gen.add_argument("--frames", type=_positive, default=48, metavar="N", help="number of frames (default 48)")
+    gen.add_argument("--size", type=_size, default=(320, 180), metavar="WxH", help="resolution (default 320x180)")
+    gen.add_argument("--script", default="random", metavar="NAME",
+                     help="scene script: random, enter, start-moving or conversation (default random)")
+    gen.add_argument("--samples", type=_positive, default=16, metavar="S",
+                     help="Cycles samples of the pinhole (input/GT) pass (default 16)")
+    gen.add_argument("--dof-samples", type=_positive, default=24, metavar="S",
+                     help="Cycles samples of the depth-of-field passes (default 24)")
+    gen.add_argument("--train-samples", type=_positive, default=16, metavar="S",
+                     help="Cycles samples of the mid/small apertures of the training triplets (default 16)")
+    gen.add_argument("--f-numbers", type=_f_numbers, default=(1.0, 2.8, 8.0), metavar="L,M,S",
+                     help="f-numbers: LARGE aperture of the focus tracks, then MID and SMALL of the aperture "
+                          "triplets (default 1.0,2.8,8.0; aperture scale 1 = f/1.0)")
+    gen.add_argument("--train-every", type=_non_negative, default=4, metavar="N",
+                     help="training pairs/triplets on frames 1, 1+N, ... (0 = none; default 4)")
+    gen.add_argument("--pull-frames", type=_positive, default=10, metavar="N", help="rack pull length (default 10)")
+    gen.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
+    gen.add_argument("--force", action="store_true",
+                     help="regenerate from scratch (removes only the harness' own files in DIR)")
+    gen.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    return gen
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run ``generate``; returns the exit code (1 with a clear message on bad input)."""
+    try:
+        import bpy  # noqa: F401  (the harness renders with Blender as a Python module)
+    except ImportError:
+        print("error: bpy is not installed: run ./scripts/setup.sh (it installs bpy==5.0.1 into .venv)",
+              file=sys.stderr)
+        return 2
+    from rvr_addon.errors import RvrError
+
+    from .dataset import GenerateConfig, generate
+
+    try:
+        cfg = GenerateConfig(seed=args.seed, frames=args.frames, width=args.size[0], height=args.size[1],
+                             script=args.script, samples=args.samples, dof_samples=args.dof_samples,
+                             train_samples=args.train_samples,
+                             f_numbers=args.f_numbers, train_every=args.train_every, pull_frames=args.pull_frames,
+                             denoise=not args.no_denoise).validated()
+        result = generate(args.out, cfg, force=args.force, progress=not args.quiet)
+    except RvrError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("cancelled: re-run the same command to resume (complete frames are kept)", file=sys.stderr)
+        return 130
+    t = result.timings
+    print(f"wrote {result.out}: {len(result.rendered)} frame(s) rendered, {len(result.kept)} kept from an earlier "
+          f"run; {t['total_s']:.1f} s (deep {t['deep_s']:.1f} s / {t['deep_renders']} renders, "
+          f"dof {t['dof_s']:.1f} s / {t['dof_renders']} renders, encode {t['encode_s']:.1f} s)")
+    return 0

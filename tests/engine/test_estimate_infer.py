@@ -1,0 +1,204 @@
+"""rvr estimate: the per-clip cache (resume, stale entries), external depth, bad input, weights errors.
+
+The weights here are an untrained network exported for the tests (the cache and the stream
+do not care what the network has learnt); no weights are shipped as a model.
+"""
+from __future__ import annotations
+
+import json
+import os
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from rvr_addon.cli import main
+from rvr_addon.errors import InputError
+from rvr_addon.estimate.cache import ClipCache, frame_path
+from rvr_addon.estimate.infer import (
+    SHIPPED_WEIGHTS, EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, sample_window,
+)
+from rvr_addon.estimate.train import export_weights
+from rvr_addon.estimate.unet import EstimatorNet
+from rvr_addon.io.exr import read_exr
+
+
+def untrained_weights(path, seed: int):
+    torch.manual_seed(seed)
+    return export_weights(EstimatorNet(), path, iterations=0, wall_time_s=0.0, training={"note": "test only"})
+
+
+@pytest.fixture(scope="module")
+def weights(tmp_path_factory):
+    d = tmp_path_factory.mktemp("weights")
+    return untrained_weights(d / "a.pt", 0), untrained_weights(d / "b.pt", 1)
+
+
+@pytest.fixture
+def clip(tmp_path):
+    """3 frames 40x30: an RGB PNG, a grey PNG and a 16-bit RGBA PNG (bad input handled)."""
+    folder = tmp_path / "clip"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    rgb = (rng.random((30, 40, 3)) * 255).astype(np.uint8)
+    rgb[5:9, 5:9] = 255  # a clipped highlight
+    cv2.imwrite(str(folder / "f1.png"), rgb)
+    cv2.imwrite(str(folder / "f2.png"), rgb[:, :, 0])
+    rgba16 = np.dstack([rgb.astype(np.uint16) * 257, np.full((30, 40), 65535, np.uint16)])
+    cv2.imwrite(str(folder / "f3.png"), rgba16)
+    return folder
+
+
+def run(clip, cache, **kw) -> EstimateJob:
+    job = EstimateJob(EstimateSettings(input=clip, output=cache, **kw))
+    job.run(progress=False)
+    return job
+
+
+def test_cache_layout_and_resume(clip, tmp_path, weights):
+    cache = tmp_path / "cache"
+    job = run(clip, cache, weights=weights[0])
+    assert (job.computed, job.reused) == (3, 0)
+    meta = json.loads((cache / "meta.json").read_text())
+    for key in ("engine_version", "model_hash", "source", "source_hash", "resolution", "fps", "frame_range"):
+        assert key in meta, key
+    assert meta["resolution"] == [40, 30] and meta["frame_range"] == [0, 3] and meta["model_hash"] == job.model.model_hash
+    ch = read_exr(frame_path(cache, 0))
+    assert sorted(ch) == ["D", "E.B", "E.G", "E.R"] and ch["D"].shape == (30, 40)
+    e = np.dstack([ch["E.R"], ch["E.G"], ch["E.B"]])
+    assert e.min() >= 0.0 and e.max() <= np.log(1000.0) / 50.0 + 1e-6  # 0 <= E <= E_max
+    # the same run again reuses everything
+    again = run(clip, cache, weights=weights[0])
+    assert (again.computed, again.reused) == (0, 3)
+    # a truncated EXR and an unreadable one are recomputed, never trusted
+    p2 = frame_path(cache, 1)
+    p2.write_bytes(p2.read_bytes()[:100])
+    third = run(clip, cache, weights=weights[0])
+    assert (third.computed, third.reused) == (1, 2)
+    # frames on disk but not recorded in meta.json (a killed run) are recomputed
+    meta = json.loads((cache / "meta.json").read_text())
+    del meta["frames"]["3"]
+    (cache / "meta.json").write_text(json.dumps(meta))
+    assert run(clip, cache, weights=weights[0]).computed == 1
+
+
+def test_other_model_or_source_recomputes(clip, tmp_path, weights):
+    cache = tmp_path / "cache"
+    first = run(clip, cache, weights=weights[0])
+    d0 = read_exr(frame_path(cache, 0))["D"]
+    other = run(clip, cache, weights=weights[1])
+    assert (other.computed, other.reused) == (3, 0)
+    assert json.loads((cache / "meta.json").read_text())["model_hash"] == other.model.model_hash != first.model.model_hash
+    assert not np.array_equal(read_exr(frame_path(cache, 0))["D"], d0)
+    st = (clip / "f1.png").stat()
+    os.utime(clip / "f1.png", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))  # the source changed
+    assert run(clip, cache, weights=weights[1]).computed == 3
+    (cache / "meta.json").write_text("{broken")
+    assert run(clip, cache, weights=weights[1]).computed == 3
+
+
+def test_partial_range_and_stale_frames_removed(clip, tmp_path, weights):
+    cache = tmp_path / "cache"
+    job = run(clip, cache, weights=weights[0], start=1, stop=3)
+    assert job.computed == 2 and not frame_path(cache, 0).exists()
+    run(clip, cache, weights=weights[1], start=2)
+    assert not frame_path(cache, 1).exists()  # written by another model: removed, not left to be trusted
+    assert frame_path(cache, 2).exists()
+
+
+def test_estimator_core_shapes_tiny_frames_and_downscaled_trunk(weights):
+    model = load_estimator(weights[0])
+    for h, w in ((1, 1), (2, 3), (31, 17)):
+        d, e = Estimator(model)(np.full((h, w, 3), 128, np.uint8))
+        assert d.shape == (h, w) and e.shape == (h, w, 3) and d.dtype == np.float32
+    frame = cv2.resize((np.random.default_rng(1).random((12, 16, 3)) * 255).astype(np.uint8), (128, 96),
+                       interpolation=cv2.INTER_CUBIC)
+    full_d, full_e = Estimator(model)(frame)
+    half_d, half_e = Estimator(model, max_pixels=64 * 48)(frame)
+    assert half_d.shape == full_d.shape and half_e.shape == full_e.shape
+    # D is in px at the frame's width: a net running on a half-size copy returns the same units
+    assert abs(float(half_d.mean()) - float(full_d.mean())) < 0.2 * abs(float(full_d.mean())) + 0.05
+
+
+def test_weights_errors_name_the_file(tmp_path, clip):
+    bad = tmp_path / "corrupt_weights.pt"
+    bad.write_bytes(b"\x00not torch")
+    with pytest.raises(InputError, match="corrupt_weights.pt"):
+        load_estimator(bad)
+    with pytest.raises(InputError, match="missing.pt"):
+        load_estimator(tmp_path / "missing.pt")
+    other = tmp_path / "state_dict.pt"
+    torch.save({"conv.weight": torch.zeros(1)}, other)
+    with pytest.raises(InputError, match="state_dict.pt"):
+        load_estimator(other)
+    assert not SHIPPED_WEIGHTS.exists()
+    with pytest.raises(InputError, match="no trained estimator weights are shipped"):
+        EstimateJob(EstimateSettings(input=clip, output=tmp_path / "c"))
+
+
+def test_external_depth_affine_points_and_distance(clip, tmp_path, weights):
+    maps = tmp_path / "depth"
+    maps.mkdir()
+    yy, xx = np.mgrid[:30, :40].astype(np.float32)
+    for i in range(3):
+        np.save(maps / f"d{i}.npy", (1.0 + xx / 10.0).astype(np.float32))  # distance 1..4.9 m
+    cache = tmp_path / "c1"
+    run(clip, cache, depth=maps, depth_scale=2.0, depth_offset=-1.0, no_hdr=True)
+    ch = read_exr(frame_path(cache, 2))
+    np.testing.assert_allclose(ch["D"], 2.0 * (1.0 + xx / 10.0) - 1.0, rtol=1e-6)
+    assert float(np.abs(ch["E.R"]).max()) == 0.0
+    # distances: a near plane (1 m, x < 10) and a far one (4 m, x >= 25); the two points say the
+    # near plane is at disparity -3 (in front of focus) and the far one at +1
+    steps = np.select([xx < 10, xx < 25], [1.0, 2.0], 4.0).astype(np.float32)
+    for i in range(3):
+        np.save(maps / f"d{i}.npy", steps)
+    cache2 = tmp_path / "c2"
+    job = run(clip, cache2, depth=maps, depth_points=[(3.0, 10.0, -3.0), (30.0, 10.0, 1.0)],
+              depth_is_distance=True, weights=weights[0])
+    d = read_exr(frame_path(cache2, 0))["D"]
+    assert d[0, 0] == pytest.approx(-3.0, abs=1e-5) and d[29, 39] == pytest.approx(1.0, abs=1e-5)
+    # disparity is affine in 1/distance: the 2 m plane sits at 1/2 between 1/1 and 1/4 -> D = -3 + 4 (1 - 1/2) / (3/4)
+    assert d[10, 15] == pytest.approx(-3.0 + 4.0 * (1 - 0.5) / 0.75, abs=1e-5)
+    assert job.depth.scale < 0  # nearer (larger 1/distance) = more negative disparity
+    e = read_exr(frame_path(cache2, 0))["E.R"]
+    assert e.shape == (30, 40)  # E from the network
+    with pytest.raises(InputError, match="same map value"):
+        fit_two_points([2.0, 2.0], [0.0, 1.0])
+    with pytest.raises(InputError, match="outside"):
+        EstimateJob(EstimateSettings(input=clip, output=tmp_path / "c3", depth=maps, no_hdr=True,
+                                     depth_points=[(0.0, 0.0, 0.0), (99.0, 0.0, 1.0)]))
+    assert sample_window(np.arange(25.0).reshape(5, 5), 2.0, 2.0) == 12.0
+
+
+def test_cli_estimate_then_render_from_the_cache(clip, tmp_path, weights, capsys):
+    cache = tmp_path / "cache"
+    assert main(["estimate", str(clip), "-o", str(cache), "--weights", str(weights[0]), "-q"]) == 0
+    out = tmp_path / "render"
+    assert main(["render", str(clip), "--depth", str(cache), "--hdr", str(cache), "--focus", "0",
+                 "-o", str(out), "-q"]) == 0
+    assert len(list(out.glob("*.png"))) == 3
+    capsys.readouterr()
+    assert main(["estimate", str(clip), "-o", str(tmp_path / "c2"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "no trained estimator weights are shipped" in err and "rvr train" in err
+
+
+def test_clip_cache_rejects_a_file_path(tmp_path):
+    f = tmp_path / "file"
+    f.write_text("x")
+    from rvr_addon.errors import OutputError
+
+    with pytest.raises(OutputError, match="is a file"):
+        ClipCache(f, {"format": 1, "engine_version": 1, "model_hash": 1, "source_hash": 1, "resolution": 1,
+                      "depth": 1})
+
+
+def test_tiny_frames_through_the_job(tmp_path, weights):
+    folder = tmp_path / "tiny"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), np.full((2, 3), 200, np.uint8))  # grey, 3x2 px
+    job = run(folder, tmp_path / "cache", weights=weights[0])
+    assert job.computed == 1
+    ch = read_exr(frame_path(tmp_path / "cache", 0))
+    assert ch["D"].shape == (2, 3) and np.isfinite(ch["D"]).all()

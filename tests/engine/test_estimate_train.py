@@ -1,0 +1,139 @@
+"""Training: the loss decreases on a tiny synthetic harness clip; checkpoints resume exactly."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from estimate_synth import make_clip
+from rvr_addon.errors import InputError
+from rvr_addon.estimate.infer import load_estimator
+from rvr_addon.estimate.losses import LossWeights
+from rvr_addon.estimate.train import Trainer, TrainSettings, sample_loss
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tiny")
+    make_clip(root / "clip0", seed=5, frames=2)
+    return root
+
+
+def settings(run, data, **kw) -> TrainSettings:
+    base = dict(run_dir=run, data=[data], iterations=10, lr=1e-3, crop=32, checkpoint_every=5)
+    base.update(kw)
+    return TrainSettings(**base)
+
+
+def fixed_loss(trainer: Trainer, n: int = 6) -> float:
+    """Mean loss of the same n samples (drawn with their own seed; no gradient)."""
+    rng = np.random.default_rng(123)
+    samples = [trainer.data.draw(rng) for _ in range(n)]
+    with torch.no_grad():
+        return float(np.mean([sample_loss(trainer.model, s, LossWeights()).total.item() for s in samples]))
+
+
+def test_loss_decreases_and_run_folder(tmp_path, tiny_dataset):
+    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=40, checkpoint_every=20))
+    before = fixed_loss(trainer)
+    trainer.run(progress=False)
+    after = fixed_loss(trainer)
+    assert after < 0.8 * before, (before, after)
+    run = tmp_path / "run"
+    for name in ("checkpoint.pt", "loss_log.csv", "loss.png", "run.json", "estimator.pt", "estimator.json"):
+        assert (run / name).is_file(), name
+    rows = list(csv.DictReader((run / "loss_log.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == list(range(1, 41))
+    assert {r["kind"] for r in rows} <= {"pair", "aperture", "focal"} and len({r["kind"] for r in rows}) == 3
+    header = json.loads((run / "estimator.json").read_text())
+    assert header["iterations"] == 40 and header["training"]["training_data"]["harness_frames"] == 2
+    assert header["parameters"] == trainer.model.parameter_count()
+    loaded = load_estimator(run / "estimator.pt")
+    for k, v in trainer.model.state_dict().items():
+        assert torch.equal(loaded.net.state_dict()[k], v)
+    assert (run / "estimator.pt").stat().st_size < 20e6
+
+
+def test_resume_continues_exactly(tmp_path, tiny_dataset):
+    straight = Trainer(settings(tmp_path / "a", tiny_dataset, iterations=10))
+    straight.run(progress=False)
+    first = Trainer(settings(tmp_path / "b", tiny_dataset, iterations=5))
+    first.run(progress=False)
+    with pytest.raises(InputError, match="--resume"):
+        Trainer(settings(tmp_path / "b", tiny_dataset, iterations=10))
+    resumed = Trainer(settings(tmp_path / "b", tiny_dataset, iterations=10, resume=True))
+    assert resumed.iteration == 5
+    resumed.run(progress=False)
+    assert resumed.iteration == 10
+    for k, v in straight.model.state_dict().items():
+        torch.testing.assert_close(resumed.model.state_dict()[k], v, rtol=1e-5, atol=1e-6)
+    rows = list(csv.DictReader((tmp_path / "b" / "loss_log.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == list(range(1, 11))
+    straight_rows = list(csv.DictReader((tmp_path / "a" / "loss_log.csv").open()))
+    assert [r["sample"] + r["kind"] for r in rows] == [r["sample"] + r["kind"] for r in straight_rows]
+
+
+def test_ctrl_c_saves_a_checkpoint_and_drops_unsaved_log_rows(tmp_path, tiny_dataset, monkeypatch):
+    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, checkpoint_every=100))
+    real_draw = trainer.data.draw
+    calls = {"n": 0}
+
+    def draw(rng):
+        calls["n"] += 1
+        if calls["n"] == 8:
+            raise KeyboardInterrupt
+        return real_draw(rng)
+
+    monkeypatch.setattr(trainer.data, "draw", draw)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.run(progress=False)
+    resumed = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=9, resume=True))
+    assert resumed.iteration == 7
+    resumed.run(progress=False)
+    rows = list(csv.DictReader((tmp_path / "run" / "loss_log.csv").open()))
+    assert [int(r["iteration"]) for r in rows] == list(range(1, 10))
+
+
+def test_bad_settings_and_corrupt_checkpoint(tmp_path, tiny_dataset):
+    with pytest.raises(InputError, match="no training data"):
+        Trainer(TrainSettings(run_dir=tmp_path / "x"))
+    with pytest.raises(InputError, match="does not exist"):
+        Trainer(settings(tmp_path / "y", tiny_dataset, resume=True))
+    run = tmp_path / "z"
+    run.mkdir()
+    (run / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(InputError, match="checkpoint.pt"):
+        Trainer(settings(run, tiny_dataset, resume=True))
+
+
+def test_deferred_interrupt_finishes_the_block_first():
+    import os
+    import signal
+
+    from rvr_addon.estimate.train import deferred_interrupt
+
+    before = signal.getsignal(signal.SIGINT)
+    done = []
+    with pytest.raises(KeyboardInterrupt):
+        with deferred_interrupt():
+            os.kill(os.getpid(), signal.SIGINT)
+            done.append("update")
+    assert done == ["update"]
+    assert signal.getsignal(signal.SIGINT) is before
+
+
+def test_cli_train_and_refusal_to_overwrite(tmp_path, tiny_dataset, capsys):
+    from rvr_addon.cli import main
+
+    run = tmp_path / "run"
+    args = ["train", "--data", str(tiny_dataset), "-o", str(run), "--crop", "32", "-q"]
+    assert main(args + ["--iterations", "3"]) == 0
+    assert (run / "estimator.pt").is_file()
+    capsys.readouterr()
+    assert main(args + ["--iterations", "6"]) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert main(args + ["--iterations", "6", "--resume"]) == 0
+    assert json.loads((run / "estimator.json").read_text())["iterations"] == 6
