@@ -4,7 +4,9 @@ The model is defined in :mod:`.model`. Speed comes from skipping work, never fro
 approximating a kernel: per 16x16 tile we record which layers have a non-zero matte there,
 and each layer is blurred and composited only on boxes around its active tiles. The boxes
 of one layer are grown by the kernel radius and merged until disjoint, so every blurred
-footprint lies inside exactly one box and the result equals a full-frame blur.
+footprint lies inside exactly one box and the result equals a full-frame blur. The fill of
+the coverage resolve (model step 5) is one push-pull over the frame: its first level is
+pulled straight from the colour planes and the full-resolution push is a bilinear upsampling.
 """
 from __future__ import annotations
 
@@ -21,20 +23,25 @@ from ..color import linear_to_srgb, srgb_to_linear, to_float01
 from ..errors import InputError
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
-    ALPHA_EPS,
-    ALPHA_SPAN,
+    EXP_FLOOR,
+    FILL_DEPTH_SHARPNESS,
+    FILL_DEPTH_TOLERANCE,
     LAMBDA,
-    MATTE_CUTOFF,
     MATTE_FLOOR,
     MATTE_OFFSETS,
+    OCCLUSION_DELAY,
+    WEIGHT_EPS,
     LayerPlan,
     hdr_radiance,
-    matte_normaliser,
     plan_for_radius_map,
+    push_pull_levels,
     signed_radius,
 )
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (half-open, px)
+PUSH_PULL_NUMPY_BELOW = 16
+"""Push-pull levels with a side below this many px are done in plain numpy (they are tiny, and
+OpenCV's Python bindings read an (n <= 4, 1) array as a scalar)."""
 
 
 @dataclass
@@ -79,13 +86,14 @@ class FastRenderer:
             plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
         j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
         u = np.clip(s / np.float32(plan.step), j_lo, j_hi).astype(np.float32)
-        inv_norm = cv2.divide(1.0, matte_normaliser(u, plan)) if self.naive else None
+        inv_norm = cv2.divide(1.0, matte_normaliser_cv(u, j_lo, j_hi))
         active = self._active_layers(u, j_lo, j_hi)
         h, w = u.shape
-        radiance1 = cv2.merge((*cv2.split(radiance.astype(np.float32, copy=False)), np.ones((h, w), np.float32)))
+        channels = cv2.split(radiance.astype(np.float32, copy=False))
+        radiance1 = cv2.merge((*channels, np.ones((h, w), np.float32)))
         zones = (zone_edges(h, self.spec.zones), zone_edges(w, self.spec.zones)) if self.spec.varies else None
         tasks = []
-        for j in plan.indices:  # back to front
+        for j in plan.indices[::-1]:  # front to back (model step 4)
             tiles = active[int(j) - j_lo]
             if tiles.any():
                 radius = abs(float(j) * plan.step)
@@ -94,25 +102,48 @@ class FastRenderer:
                     kernel = ZoneKernels(*zones, [[self._kernel(radius, (zy, zx)) for zx in range(self.spec.zones)]
                                                   for zy in range(self.spec.zones)])
                 for box, core in layer_boxes(tiles, self.tile, kernel.shape[0] // 2, (h, w)):
-                    tasks.append((float(j), kernel, box, core))
-        acc = np.zeros((h, w, 4), dtype=np.float32)
+                    tasks.append((int(j), kernel, box, core))
+        acc = np.zeros((h, w, 4), dtype=np.float32)  # [sum T C, cov = sum T W] (model step 4)
+        hidden = np.zeros((h, w), dtype=np.float32)  # sum of V_i over layers i <= j - S
+        visible: deque = deque()  # (layer, [(box, V)]) not yet added to `hidden`
+        current = None
 
         def blur(task):
             j, kernel, box, core = task
-            return box, blur_layer_box(radiance1, u, inv_norm, j, j_hi, kernel, box, core)
+            return j, box, blur_layer_box(radiance1, u, inv_norm, float(j), kernel, box, core)
 
         # blurs run ahead on worker threads (OpenCV's DFT filter is single-threaded and
-        # releases the GIL); compositing stays in back-to-front order on this thread
-        for (y0, y1, x0, x1), src in self._map_ordered(blur, tasks):
+        # releases the GIL); compositing stays in front-to-back order on this thread
+        for j, (y0, y1, x0, x1), src in self._map_ordered(blur, tasks):
+            if j != current:
+                while visible and visible[0][0] <= j - OCCLUSION_DELAY:
+                    for (b0, b1, b2, b3), v in visible.popleft()[1]:
+                        box_hidden = hidden[b0:b1, b2:b3]
+                        cv2.add(box_hidden, v, dst=box_hidden)
+                if not self.naive:
+                    visible.append((j, []))
+                current = j
             dst = acc[y0:y1, x0:x1]
-            if self.naive:
+            box_hidden = hidden[y0:y1, x0:x1]
+            if self.naive or not cv2.countNonZero(box_hidden):  # nothing in front: T = 1
                 cv2.add(dst, src, dst=dst)
+                if not self.naive:
+                    visible[-1][1].append(((y0, y1, x0, x1), cv2.extractChannel(src, 3)))
             else:
-                t = 1.0 - src[..., 3]
-                cv2.multiply(dst, cv2.merge((t, t, t, t)), dst=dst)
-                cv2.add(dst, src, dst=dst)
-        alpha = cv2.max(acc[..., 3], ALPHA_EPS)
-        return cv2.divide(acc[..., :3].copy(), cv2.merge((alpha, alpha, alpha)))
+                t = cv2.max(cv2.subtract(1.0, box_hidden), 0.0)
+                cv2.accumulateProduct(src, cv2.merge((t, t, t, t)), dst)
+                visible[-1][1].append(((y0, y1, x0, x1), cv2.multiply(t, cv2.extractChannel(src, 3))))
+        # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
+        *acc_rgb, cov = cv2.split(acc)
+        weight = cv2.min(cov, 1.0)
+        fill = fill_level1_cv(channels, weight, u)
+        scale = cv2.divide(1.0, cv2.max(cov, 1.0))
+        rest = cv2.subtract(1.0, weight)
+        size = (2 * fill.shape[1], 2 * fill.shape[0])
+        out = [cv2.add(cv2.multiply(a, scale),
+                       cv2.multiply(cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w], rest))
+               for a, f in zip(acc_rgb, cv2.split(fill))]
+        return cv2.merge(out)
 
     def render_srgb(
         self,
@@ -237,28 +268,22 @@ def layer_boxes(tiles: np.ndarray, tile: int, half: int, shape: tuple[int, int])
 def blur_layer_box(
     radiance1: np.ndarray,
     u: np.ndarray,
-    inv_norm: np.ndarray | None,
+    inv_norm: np.ndarray,
     j: float,
-    j_hi: float,
     kernel: np.ndarray,
     box: Box,
     core: Box,
 ) -> np.ndarray:
-    """Blurred premultiplied [R, G, B, alpha] (h, w, 4) of layer j over ``box``.
+    """Blurred premultiplied [R, G, B, W] (h, w, 4) of layer j over ``box`` (model step 3).
 
     radiance1: (H, W, 4) float32 [R, G, B, 1] linear radiance with a channel of ones.
-    alpha is the layer's over-compositing alpha (model step 3), or, when ``inv_norm`` (the
-    reciprocal matte normaliser) is given, the normalised matte itself (naive variant).
-    Sources are the pixels of ``core`` (alpha is zero elsewhere in the box); ``kernel`` is
+    The matte is the normalised ``M_j`` (``inv_norm``: the reciprocal matte normaliser).
+    Sources are the pixels of ``core`` (the matte is zero elsewhere in the box); ``kernel`` is
     already flipped for correlation; zero outside the frame.
     """
     y0, y1, x0, x1 = box
     cy0, cy1, cx0, cx1 = core
-    uc = u[cy0:cy1, cx0:cx1]
-    if inv_norm is not None:
-        alpha = cv2.multiply(_matte_cv(uc, j), inv_norm[cy0:cy1, cx0:cx1])
-    else:
-        alpha = _alpha_cv(uc, j, j_hi)
+    alpha = cv2.multiply(_matte_cv(u[cy0:cy1, cx0:cx1], j), inv_norm[cy0:cy1, cx0:cx1])
     core_src = cv2.multiply(radiance1[cy0:cy1, cx0:cx1], cv2.merge((alpha, alpha, alpha, alpha)))
     if isinstance(kernel, ZoneKernels):
         return _blur_by_zones(core_src, kernel, box, core)
@@ -306,24 +331,137 @@ def _blur_by_zones(core_src: np.ndarray, zk: ZoneKernels, box: Box, core: Box) -
     return out
 
 
-def _alpha_cv(u: np.ndarray, j: float, j_hi: float) -> np.ndarray:
-    """:func:`.model.layer_alpha` with OpenCV arithmetic and two exponentials instead of four.
+def fill_cv(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """:func:`.model.push_pull_fill` with OpenCV (same values): (H, W, 3) float32 colour,
+    (H, W) weight in [0, 1] and depth (layer coordinate) -> (H, W, 3) fill."""
+    h, w = weight.shape
+    f = fill_level1_cv(cv2.split(colour), weight, depth)
+    return np.ascontiguousarray(cv2.resize(f, (2 * f.shape[1], 2 * f.shape[0]), interpolation=cv2.INTER_LINEAR)[:h, :w])
 
-    With d = u - j, the Gaussians of layers j + i are e_i = exp(-LAMBDA (d - i)^2), and
-    e_{i+1} = e_i * exp(2 LAMBDA d) * exp(-LAMBDA (2 i + 1)).
+
+def fill_level1_cv(channels: list, weight: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Level 1 (half resolution, (ceil(H/2), ceil(W/2), 3)) of the fill of
+    :func:`.model.push_pull_fill`, whose bilinear 2x upsampling cropped to (H, W) is the fill.
+
+    channels: the three (H, W) float32 colour planes; weight, depth: (H, W) float32. Depths
+    are handled as ``y = kappa * z`` (a depth factor is then one exp of ``min(y - y_ref +
+    kappa * tolerance, 0)``). Levels with a side below PUSH_PULL_NUMPY_BELOW use the model's
+    numpy code.
     """
-    # |d| >= cutoff has alpha 0 anyway; the clamp keeps exp(2 LAMBDA d) finite
-    d = np.clip(cv2.subtract(u, j), -MATTE_CUTOFF - 0.01, MATTE_CUTOFF + 0.01)
-    e = cv2.exp(cv2.multiply(d, d, scale=-LAMBDA))
-    x = cv2.exp(cv2.multiply(d, 2.0 * LAMBDA))
-    g0 = cv2.max(cv2.subtract(e, MATTE_FLOOR), 0.0)
-    total = g0.copy()
-    for i in range(ALPHA_SPAN - 1):
-        if j + i + 1 > j_hi:
+    if min(weight.shape) < PUSH_PULL_NUMPY_BELOW:
+        f, _ = push_pull_levels(cv2.merge(channels), weight, depth, down_to=1)
+        return f.astype(np.float32)
+    c, w, y = _pull0_cv(channels, weight, cv2.multiply(depth, FILL_DEPTH_SHARPNESS))
+    levels = []
+    while True:
+        yv = y.copy()
+        yv[w <= 0] = -np.inf  # depths of samples with weight, for the block maxima and m
+        levels.append((c, w, y, yv))
+        if min(w.shape) < PUSH_PULL_NUMPY_BELOW:
             break
-        e = cv2.multiply(e, x, scale=float(np.exp(-LAMBDA * (2 * i + 1))))
-        cv2.add(total, cv2.max(cv2.subtract(e, MATTE_FLOOR), 0.0), dst=total)
-    return cv2.divide(g0, cv2.max(total, 1e-30))
+        c, w, y = _pull_cv(c, w, y, yv)
+    # the small levels in plain numpy (in y units: unit sharpness, tolerance kappa * tolerance)
+    f, g = push_pull_levels(*levels[-1][:3], 1.0, _TOLERANCE_Y)
+    f, g = f.astype(np.float32), g.astype(np.float32)
+    for c, w, y, yv in reversed(levels[:-1]):  # push down to level 1
+        h, wd = w.shape
+        size = (2 * g.shape[1], 2 * g.shape[0])
+        fu = np.ascontiguousarray(cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :wd])
+        gu = np.ascontiguousarray(cv2.resize(g, size, interpolation=cv2.INTER_LINEAR)[:h, :wd])
+        m = cv2.max(yv, gu)
+        a = cv2.multiply(w, _factor(y, m))
+        b = cv2.multiply(cv2.subtract(1.0, w), _factor(gu, m))
+        inv = cv2.divide(1.0, cv2.add(a, b))
+        a, b = cv2.multiply(a, inv), cv2.multiply(b, inv)
+        f = cv2.add(cv2.multiply(c, cv2.merge((a, a, a))), cv2.multiply(fu, cv2.merge((b, b, b))))
+        g = cv2.add(cv2.multiply(y, a), cv2.multiply(gu, b))
+    return f
+
+
+_TOLERANCE_Y = FILL_DEPTH_SHARPNESS * FILL_DEPTH_TOLERANCE
+
+
+def _factor(y: np.ndarray, y_ref: np.ndarray) -> np.ndarray:
+    """:func:`.model.depth_factor` of ``z - z_ref`` for ``y = kappa z``:
+    ``exp(max(min(y - y_ref + kappa tolerance, 0), EXP_FLOOR))``."""
+    t = cv2.add(cv2.subtract(y, y_ref), _TOLERANCE_Y)
+    return cv2.exp(cv2.max(cv2.min(t, 0.0), EXP_FLOOR))
+
+
+def _block_max_up(yv: np.ndarray) -> np.ndarray:
+    """Each pixel's 2x2-block maximum of yv (even-sized, -inf = no sample), 0 for empty blocks."""
+    h, wd = yv.shape
+    ymax = np.maximum(np.maximum(yv[0::2, 0::2], yv[0::2, 1::2]), np.maximum(yv[1::2, 0::2], yv[1::2, 1::2]))
+    ymax[np.isneginf(ymax)] = 0.0
+    return cv2.resize(ymax, (wd, h), interpolation=cv2.INTER_NEAREST)
+
+
+def _pad_even_cv(arrays, h: int, wd: int, values):
+    pad = dict(top=0, bottom=h % 2, left=0, right=wd % 2, borderType=cv2.BORDER_CONSTANT)
+    return [cv2.copyMakeBorder(x, value=v, **pad) for x, v in zip(arrays, values)]
+
+
+def _pull0_cv(channels: list, w: np.ndarray, y: np.ndarray):
+    """The first pull step, from separate colour planes (no interleaved copies)."""
+    h, wd = w.shape
+    yv = y
+    if float(w.min()) <= 0.0:
+        yv = y.copy()
+        yv[w <= 0] = -np.inf
+    if h % 2 or wd % 2:
+        *channels, w, y, yv = _pad_even_cv((*channels, w, y, yv), h, wd, (0, 0, 0, 0, 0, -np.inf))
+        h, wd = w.shape
+    e = cv2.multiply(w, _factor(y, _block_max_up(yv)))
+    size = (wd // 2, h // 2)
+    area = cv2.INTER_AREA  # an exact 2x reduction: the 2x2 block means
+    means = [cv2.resize(cv2.multiply(x, e), size, interpolation=area) for x in (*channels, y)]
+    se = cv2.resize(e, size, interpolation=area)
+    inv = cv2.divide(1.0, cv2.max(se, WEIGHT_EPS / 4))
+    inv[se <= WEIGHT_EPS / 4] = 0.0
+    c = cv2.merge([cv2.multiply(x, inv) for x in means[:3]])
+    return c, cv2.resize(w, size, interpolation=area), cv2.multiply(means[3], inv)
+
+
+def _pull_cv(c: np.ndarray, w: np.ndarray, y: np.ndarray, yv: np.ndarray):
+    """One depth-aware pull step of :func:`.model.push_pull_fill` (c: (h, w, 3); yv: y, -inf
+    where w = 0)."""
+    h, wd = w.shape
+    if h % 2 or wd % 2:
+        c, w, y, yv = _pad_even_cv((c, w, y, yv), h, wd, (0, 0, 0, -np.inf))
+        h, wd = w.shape
+    e = cv2.multiply(w, _factor(y, _block_max_up(yv)))
+    size = (wd // 2, h // 2)
+    ce = cv2.resize(cv2.multiply(c, cv2.merge((e, e, e))), size, interpolation=cv2.INTER_AREA)
+    se, ye, wm = cv2.split(cv2.resize(cv2.merge((e, cv2.multiply(y, e), w)), size, interpolation=cv2.INTER_AREA))
+    inv = cv2.divide(1.0, cv2.max(se, WEIGHT_EPS / 4))
+    inv[se <= WEIGHT_EPS / 4] = 0.0
+    return cv2.multiply(ce, cv2.merge((inv, inv, inv))), wm, cv2.multiply(ye, inv)
+
+
+def matte_normaliser_cv(u: np.ndarray, j_lo: int, j_hi: int) -> np.ndarray:
+    """:func:`.model.matte_normaliser` with OpenCV and two exponentials instead of four.
+
+    With f = u - floor(u), the Gaussians of layers floor(u) + k (k = -1..2) are
+    e_k = exp(-LAMBDA (f - k)^2), and e_k = e_{k-1} * exp(2 LAMBDA f) * exp(-LAMBDA (2k - 1)).
+    """
+    base = np.floor(u)
+    frac = cv2.subtract(u, base)
+    d = cv2.add(frac, 1.0)
+    e = cv2.exp(cv2.multiply(cv2.multiply(d, d), -LAMBDA))  # k = -1
+    x = cv2.exp(cv2.multiply(frac, 2.0 * LAMBDA))
+    total = np.zeros_like(u)
+    for k in MATTE_OFFSETS:
+        if k > MATTE_OFFSETS[0]:
+            e = cv2.multiply(e, x, scale=float(np.exp(-LAMBDA * (2 * k - 1))))
+        g = cv2.max(cv2.subtract(e, MATTE_FLOOR), 0.0)
+        # only the plan's layers j_lo..j_hi count (u is clipped to that range)
+        if k < 0:
+            cv2.add(total, g, dst=total, mask=cv2.compare(base, float(j_lo - k), cv2.CMP_GE))
+        elif k > 0:
+            cv2.add(total, g, dst=total, mask=cv2.compare(base, float(j_hi - k), cv2.CMP_LE))
+        else:
+            cv2.add(total, g, dst=total)
+    return total
 
 
 def _matte_cv(u: np.ndarray, j: float) -> np.ndarray:

@@ -12,28 +12,47 @@ The model, for every renderer (fast tiles, torch, brute-force reference):
    plane ``s = 0`` is always a layer and stays perfectly sharp); the soft matte of layer j is
    ``g_j = exp(-LAMBDA * ((s - s_j) / step) ** 2)`` (eq. 2), lowered by its value at
    ``MATTE_CUTOFF`` steps (1.4e-5) and clamped at 0 so it has compact support, then
-   normalised so that the mattes of a pixel sum to 1 (a partition of the pixel, so no dark
-   seams between layers);
-3. a pixel's mattes are turned into "over" alphas, back (largest ``s``) to front:
-   ``alpha_j = M_j / P_j`` with ``P_j = sum_{k >= j} M_k`` the pixel's coverage from the back
-   up to layer j. Over-compositing the unblurred layers with these alphas returns the pixel
-   exactly; crucially, a surface split between adjacent layers is opaque to what lies behind
-   it (with ``alpha_j = M_j``, eq. 4 read literally, a surface at a fractional layer lets
-   about 5% of the background show through it). The normalisation of the mattes cancels:
-   ``alpha_j = g_j / sum_{k=j}^{j+3} g_k``;
-4. each layer's premultiplied radiance ``L * alpha_j`` and its alpha ``alpha_j`` are spread by
-   the aperture kernel of radius ``|s_j|`` (a scatter: a point spreads into the PSF; zero
-   outside the frame) into ``C_j`` and ``A_j``;
-5. layers are composited back to front with the "over" operator, accumulating colour and
-   coverage alike: ``acc = acc * (1 - A_j) + [C_j, A_j]`` (eq. 4 with the matte blurred too,
-   so background blur never bleeds over a foreground silhouette);
-6. the result is normalised by the accumulated coverage, ``out = acc_rgb / acc_alpha``, which
-   fills partial coverage (occluded background behind a blurred foreground rim, frame
-   borders) without dark halos.
+   normalised so that the mattes of a pixel sum to 1: ``M_j = g_j / sum_k g_k``, a partition
+   of the pixel between (at most 4) adjacent layers;
+3. each layer's premultiplied radiance ``L * M_j`` and its matte ``M_j`` are spread by the
+   aperture kernel of radius ``|s_j|`` (a scatter: a point spreads into the PSF; zero outside
+   the frame) into ``C_j`` and ``W_j``. Nothing is counted twice: the layers of a pixel carry
+   its radiance once, so a blurred object keeps its energy;
+4. layers are composited FRONT to back with delayed occlusion. The visible fraction of layer j
+   is ``T_j = max(0, 1 - sum_{i <= j - S} V_i)`` with ``V_i = T_i * W_i`` the visible coverage
+   of layer i and ``S = OCCLUSION_DELAY = 2`` steps; ``acc = sum_j T_j C_j`` and
+   ``cov = sum_j V_j``. A layer is hidden by the visible coverage of the layers at least S
+   steps in front of it (for S = 1 this is exactly the "over" operator of eq. 4, with the
+   matte blurred too so background blur never bleeds over a foreground silhouette). Layers
+   less than S steps apart add instead: they share pixels through the soft matte of eq. 2, and
+   a surface must not occlude itself (with S = 1 a surface split between layers hides ~10% of
+   itself and lets ~10% of the background through; the earlier ``alpha_j = M_j / P_j`` cure
+   made it opaque but put a full-strength copy of every pixel in the back-most layer of its
+   matte, which more than doubled the energy of a small blurred highlight). The parts of a
+   surface lie within 3 steps and those 2 or 3 steps apart carry <= 5.5% each, so with S = 2
+   a sharp surface is opaque to what lies S steps behind its parts and hides at most 0.3% of
+   itself (restored by step 5); surfaces closer than that blend like the naive sum;
+5. the result is resolved by the coverage:
+   ``out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill``.
+   ``cov < 1`` where light reaches the lens from behind every visible layer: the background
+   occluded in the input, seen around a blurred foreground's rim (the layers behind it have a
+   hole where the foreground was), beyond the frame border (a blur reaching outside the frame),
+   and the small deficits of the discretisation. That light is unknown; ``fill`` estimates it
+   from the input radiance L around the pixel: :func:`push_pull_fill`, a push-pull pyramid
+   whose samples are the pixels weighted by their coverage ``min(cov, 1)`` (a pixel its own
+   surface no longer covers is no evidence of what lies behind it), in which, within each 2x2
+   block and between levels, a sample more than FILL_DEPTH_TOLERANCE steps in front of the
+   farthest one fades by ``exp(-FILL_DEPTH_SHARPNESS)`` per step (an occluder is not the
+   background it hides), weights are averaged (not saturated) up the pyramid, and the fill is
+   the half-resolution level upsampled. So a hole takes the colour of the covered background
+   around it, the rim of a blurred foreground mixes its colour with that of the real
+   neighbouring background (no dark or bright halo; normalising by the coverage instead gave
+   the rim the foreground's full colour and filled a small highlight's hole with the highlight
+   itself), and an HDR highlight keeps its energy. ``cov > 1`` only where surfaces less than S
+   steps apart overlap after the blur; there the sum is normalised.
 
-The naive variant (Srinivasan et al. 2018) uses ``M_j`` itself in step 4 and sums the
-blurred layers instead of step 5, normalising the same way, so an ablation isolates
-occlusion handling.
+The naive variant (Srinivasan et al. 2018) sums the blurred layers (``T_j = 1``, no
+occlusion) and resolves the same way, so an ablation isolates occlusion handling.
 """
 from __future__ import annotations
 
@@ -52,12 +71,19 @@ MATTE_CUTOFF = 2.0
 MATTE_FLOOR = math.exp(-LAMBDA * MATTE_CUTOFF**2)
 """Value subtracted from the Gaussian so the matte reaches 0 continuously at the cutoff."""
 MATTE_OFFSETS = range(-1, 3)
-ALPHA_SPAN = 4
-"""Layers j .. j + ALPHA_SPAN - 1 hold every non-zero matte at or behind j of a pixel with
-g_j > 0 (support of 2 steps each side)."""
 """Layers a pixel at layer coordinate u can touch: floor(u) + MATTE_OFFSETS."""
-ALPHA_EPS = 1e-8
-"""Coverage below which a pixel is treated as empty when normalising."""
+OCCLUSION_DELAY = 2
+"""S of step 4: a layer is occluded by the layers at least this many steps in front of it."""
+FILL_DEPTH_SHARPNESS = 2.0
+"""kappa of step 5, per layer step: a sample more than FILL_DEPTH_TOLERANCE steps nearer than
+the farthest one around it weighs exp(-kappa * excess) as much (e^-2 per step)."""
+FILL_DEPTH_TOLERANCE = 1.0
+"""Depth difference in layer steps within which the fill treats samples as one background."""
+EXP_FLOOR = -60.0
+"""Lower clamp of the fill's exponents (relative weights below e^-60 are treated as e^-60),
+which keeps every weight sum positive in float32."""
+WEIGHT_EPS = 1e-12
+"""Weight sums below this count as empty (colour 0)."""
 
 
 @dataclass(frozen=True)
@@ -155,18 +181,107 @@ def matte_normaliser(u: np.ndarray, plan: LayerPlan) -> np.ndarray:
     return total
 
 
-def layer_alpha(u: Any, j: float, j_hi: float) -> Any:
-    """Over-compositing alpha of layer j, ``g_j / sum_{k=j}^{min(j+3, j_hi)} g_k`` (step 3).
+# -- step 5: the fill (plain numpy; the definition the fast and torch paths reproduce) ----------
 
-    u: layer coordinate s / step (numpy or torch, clamped to the plan's range); 0 where the
-    pixel has no matte at layer j.
+def _pad_even(x: np.ndarray) -> np.ndarray:
+    """Zero-pad the first two axes to even lengths (padding has zero weight)."""
+    h, w = x.shape[:2]
+    if h % 2 == 0 and w % 2 == 0:
+        return x
+    return np.pad(x, ((0, h % 2), (0, w % 2)) + ((0, 0),) * (x.ndim - 2))
+
+
+def _blocks(x: np.ndarray) -> np.ndarray:
+    """(2h, 2w, ...) -> (h, w, 4, ...): the 2x2 blocks of an even-sized array."""
+    h, w = x.shape[0] // 2, x.shape[1] // 2
+    b = x.reshape(h, 2, w, 2, *x.shape[2:])
+    return np.moveaxis(b, 2, 1).reshape(h, w, 4, *x.shape[2:])
+
+
+def upsample2(x: np.ndarray) -> np.ndarray:
+    """Bilinear 2x upsampling with half-pixel centres and edge clamping (as ``cv2.resize``
+    INTER_LINEAR and torch's ``interpolate(..., align_corners=False)``): output pixel 2i
+    is ``0.75 x[i] + 0.25 x[i - 1]``, 2i + 1 is ``0.75 x[i] + 0.25 x[i + 1]``, per axis."""
+    for axis in (0, 1):
+        n = x.shape[axis]
+        idx = np.arange(n)
+        prev = np.take(x, np.maximum(idx - 1, 0), axis=axis)
+        nxt = np.take(x, np.minimum(idx + 1, n - 1), axis=axis)
+        even = 0.75 * x + 0.25 * prev
+        odd = 0.75 * x + 0.25 * nxt
+        x = np.stack([even, odd], axis=axis + 1)
+        shape = list(x.shape)
+        shape[axis:axis + 2] = [2 * n]
+        x = x.reshape(shape)
+    return x
+
+
+def depth_factor(dz: Any, kappa: float = FILL_DEPTH_SHARPNESS, tolerance: float = FILL_DEPTH_TOLERANCE) -> Any:
+    """Preference of a sample ``dz = z - z_ref <= 0`` layer steps nearer than the reference:
+    ``exp(max(-kappa * max(0, -dz - tolerance), EXP_FLOOR))`` (numpy or torch)."""
+    if isinstance(dz, np.ndarray) or np.isscalar(dz):
+        return np.exp(np.maximum(kappa * np.minimum(dz + tolerance, 0.0), EXP_FLOOR))
+    return (kappa * (dz + tolerance).clamp(max=0.0)).clamp(min=EXP_FLOOR).exp()
+
+
+def push_pull_fill(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray,
+                   kappa: float = FILL_DEPTH_SHARPNESS, tolerance: float = FILL_DEPTH_TOLERANCE) -> np.ndarray:
+    """The fill of model step 5, plain numpy: a depth-aware push-pull estimate at half
+    resolution, bilinearly upsampled.
+
+    colour: (H, W, C) straight colour (the input radiance); weight: (H, W) confidence in
+    [0, 1] (the pixel's coverage ``min(cov, 1)``); depth: (H, W) layer coordinate ``u``
+    (larger = farther). Returns (H, W, C) in the dtype of ``colour``.
+
+    Pull: level l + 1 has one sample per 2x2 block of level l (odd sizes padded with zero
+    weight), until 1x1. The block's samples are weighted by ``e_i = w_i depth_factor(z_i -
+    z_max)`` (z_max: the block's largest depth with w > 0): samples more than ``tolerance``
+    steps in front of the farthest are occluders, not background, and fade by ``kappa`` per
+    step. The block's colour and depth are the e-weighted means, its weight the MEAN of its
+    four weights (an occluder's poorly covered pixels stay uncertain up the pyramid).
+    Push, from the 1x1 level down to level 1: a level's fill mixes its own sample and the
+    bilinearly 2x-upsampled (:func:`upsample2`) coarser fill by ``a = w depth_factor(z - m)``
+    and ``b = (1 - w) depth_factor(z_up - m)``, ``m = max(z, z_up)`` (z_up alone where w = 0).
+    The fill is level 1's fill upsampled to full size: a pixel's own sample enters only
+    through its 2x2 block, so a hole takes the colour of the covered background around it.
     """
-    g = matte_unnormalised(u, j)
-    total = g
-    for k in range(1, ALPHA_SPAN):
-        if j + k > j_hi:
-            break
-        total = total + matte_unnormalised(u, j + k)
-    if isinstance(g, np.ndarray):
-        return np.divide(g, total, out=np.zeros_like(g), where=total > 0)
-    return g / total.clamp(min=1e-30)
+    f, _ = push_pull_levels(colour, weight, depth, kappa, tolerance, down_to=1)
+    h, w = weight.shape
+    return upsample2(f)[:h, :w].astype(colour.dtype, copy=False)
+
+
+def _pull(c: np.ndarray, w: np.ndarray, z: np.ndarray, kappa: float,
+          tolerance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One depth-aware pull step (see :func:`push_pull_fill`): the next coarser level."""
+    cb, wb, zb = _blocks(_pad_even(c)), _blocks(_pad_even(w)), _blocks(_pad_even(z))
+    zmax = np.where(wb > 0, zb, -np.inf).max(axis=2, keepdims=True)
+    zmax = np.where(np.isfinite(zmax), zmax, 0.0)
+    e = wb * depth_factor(zb - zmax, kappa, tolerance)
+    se = e.sum(axis=2)
+    inv = np.where(se > WEIGHT_EPS, 1.0 / np.maximum(se, WEIGHT_EPS), 0.0)
+    return (cb * e[..., None]).sum(axis=2) * inv[..., None], wb.mean(axis=2), (zb * e).sum(axis=2) * inv
+
+
+def push_pull_levels(c: np.ndarray, w: np.ndarray, z: np.ndarray, kappa: float = FILL_DEPTH_SHARPNESS,
+                     tolerance: float = FILL_DEPTH_TOLERANCE, down_to: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(fill colour, fill depth) at level ``down_to`` of the push-pull of :func:`push_pull_fill`
+    (level 0 = the arrays given); at least ``down_to`` pull steps are made."""
+    levels = [(c, w, z)]
+    while len(levels) <= down_to or levels[-1][1].shape != (1, 1):
+        levels.append(_pull(*levels[-1], kappa, tolerance))
+    f, g = levels[-1][0], levels[-1][2]
+    for c, w, z in reversed(levels[down_to:-1]):
+        h, wd = w.shape
+        fu, gu = upsample2(f)[:h, :wd], upsample2(g)[:h, :wd]
+        m = np.where(w > 0, np.maximum(z, gu), gu)
+        a = w * depth_factor(z - m, kappa, tolerance)
+        b = (1.0 - w) * depth_factor(gu - m, kappa, tolerance)
+        inv = 1.0 / (a + b)
+        f = (a[..., None] * c + b[..., None] * fu) * inv[..., None]
+        g = (a * z + b * gu) * inv
+    return f, g
+
+
+def resolve(acc: np.ndarray, cov: np.ndarray, fill: np.ndarray) -> np.ndarray:
+    """Step 5: ``acc / max(cov, 1) + (1 - min(cov, 1)) * fill`` ((H, W, 3), (H, W), (H, W, 3))."""
+    return acc / np.maximum(cov, 1.0)[..., None] + (1.0 - np.minimum(cov, 1.0))[..., None] * fill

@@ -2,8 +2,9 @@
 
 Every layer is evaluated on every pixel with the full matte formula, and blurred by an
 explicit scatter: each source pixel adds ``value * kernel`` to the pixels its PSF covers
-(vectorised over pixels, one kernel offset at a time). No tiles, no FFT, float64.
-Slow: minutes at 1080p; use small images.
+(vectorised over pixels, one kernel offset at a time). Compositing and the fill follow
+model.py's steps 4-5 literally (the plain-numpy :func:`.model.push_pull_fill`). No tiles, no
+FFT, float64. Slow: minutes at 1080p; use small images.
 """
 from __future__ import annotations
 
@@ -11,10 +12,12 @@ import numpy as np
 
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
-    ALPHA_EPS,
+    OCCLUSION_DELAY,
     LayerPlan,
     matte_unnormalised,
     plan_for_radius_map,
+    push_pull_fill,
+    resolve,
     signed_radius,
 )
 
@@ -77,16 +80,20 @@ def render_reference(
         plan = plan_for_radius_map(s, max_step=max_step, min_layers=min_layers)
     u = np.clip(s / np.float32(plan.step), plan.indices.min(), plan.indices.max()).astype(np.float32)
     mattes = layer_mattes(u, plan)
-    if not naive:
-        # over-compositing alphas: matte over the pixel's coverage from the back up to j
-        covered = np.cumsum(mattes, axis=0)
-        mattes = np.divide(mattes, covered, out=np.zeros_like(mattes), where=covered > 1e-12)
     rad = radiance.astype(np.float64)
-    acc = np.zeros(rad.shape[:2] + (4,), dtype=np.float64)
-    for j, m in zip(plan.indices, mattes):
-        src = np.concatenate([rad * m[..., None], m[..., None]], axis=2)
-        blurred = spread(src, spec, abs(float(j) * plan.step))
-        if not naive:
-            acc *= 1.0 - blurred[..., 3:4]
-        acc += blurred
-    return (acc[..., :3] / np.maximum(acc[..., 3:4], ALPHA_EPS)).astype(np.float32)
+    h, w = rad.shape[:2]
+    acc = np.zeros((h, w, 3))
+    cov = np.zeros((h, w))
+    hidden = np.zeros((h, w))  # sum of V_i over layers i <= j - S (step 4)
+    visible: dict[int, np.ndarray] = {}
+    for j, m in reversed(list(zip(plan.indices.tolist(), mattes))):  # front to back
+        blurred = spread(np.concatenate([rad * m[..., None], m[..., None]], axis=2), spec, abs(float(j) * plan.step))
+        c, wj = blurred[..., :3], blurred[..., 3]
+        for i in sorted(k for k in visible if k <= j - OCCLUSION_DELAY):
+            hidden += visible.pop(i)
+        t = np.ones((h, w)) if naive else np.maximum(1.0 - hidden, 0.0)
+        acc += t[..., None] * c
+        cov += t * wj
+        visible[j] = t * wj
+    fill = push_pull_fill(rad, np.minimum(cov, 1.0), u.astype(np.float64))
+    return resolve(acc, cov, fill).astype(np.float32)

@@ -1,10 +1,11 @@
 """Differentiable torch implementation of the RVR forward model (for training).
 
 Same model as :mod:`.model` (and the fast path): soft layer mattes of the signed radius,
-per-layer aperture blur, back-to-front "over" compositing with blurred mattes, normalised
-by accumulated coverage. Gradients flow to the radiance (hence to E) and, through the
-mattes, to the disparity. Layer radii are fixed per call (the plan is taken from the
-detached radius range), as in the paper.
+per-layer aperture blur, front-to-back compositing with delayed occlusion, resolved by the
+coverage with a depth-aware push-pull fill (avg-pool / bilinear-interpolate pyramid).
+Gradients flow to the radiance (hence to E) and, through the mattes, to the disparity.
+Layer radii are fixed per call (the plan is taken from the detached radius range), as in the
+paper.
 """
 from __future__ import annotations
 
@@ -13,7 +14,14 @@ import torch
 import torch.nn.functional as F
 
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
-from .model import ALPHA_EPS, LayerPlan, layer_alpha, matte_unnormalised, plan_layers
+from .model import (
+    OCCLUSION_DELAY,
+    WEIGHT_EPS,
+    LayerPlan,
+    depth_factor,
+    matte_unnormalised,
+    plan_layers,
+)
 
 DIRECT_MAX_SIDE = 11
 """Kernels up to this side are applied by direct (grouped) convolution, larger via FFT."""
@@ -91,14 +99,66 @@ def render_torch(
         sd = s.detach()
         plan = plan_layers(float(sd.min()), float(sd.max()), max_step=max_step, min_layers=min_layers)
     u = (s / plan.step).clamp(float(plan.indices.min()), float(plan.indices.max()))
-    j_hi = float(plan.indices.max())
-    norm = sum(matte_unnormalised(u, float(j)) for j in plan.indices) if naive else None
-    acc = torch.zeros(radiance.shape[0], 4, *radiance.shape[2:], dtype=radiance.dtype, device=radiance.device)
-    for j in plan.indices:  # back to front
-        m = matte_unnormalised(u, float(j)) / norm if naive else layer_alpha(u, float(j), j_hi)
+    norm = sum(matte_unnormalised(u, float(j)) for j in plan.indices)
+    shape = (radiance.shape[0], 1, *radiance.shape[2:])
+    zeros = lambda c: torch.zeros(shape[0], c, *shape[2:], dtype=radiance.dtype, device=radiance.device)  # noqa: E731
+    acc, cov, hidden = zeros(3), zeros(1), zeros(1)
+    visible: dict[int, torch.Tensor] = {}  # V_i of layers not yet in `hidden`
+    for j in plan.indices[::-1].tolist():  # front to back (model step 4)
+        m = matte_unnormalised(u, float(j)) / norm
         if not bool((m > 0).any()):
             continue
-        layer = torch.cat([radiance * m, m], dim=1)
-        blurred = spread(layer, spec, abs(float(j) * plan.step))
-        acc = acc + blurred if naive else acc * (1.0 - blurred[:, 3:4]) + blurred
-    return acc[:, :3] / acc[:, 3:4].clamp(min=ALPHA_EPS)
+        blurred = spread(torch.cat([radiance * m, m], dim=1), spec, abs(float(j) * plan.step))
+        c, wj = blurred[:, :3], blurred[:, 3:4]
+        for i in sorted(k for k in visible if k <= j - OCCLUSION_DELAY):
+            hidden = hidden + visible.pop(i)
+        if naive:
+            acc, cov = acc + c, cov + wj
+        else:
+            t = (1.0 - hidden).clamp(min=0.0)
+            v = t * wj
+            acc, cov = acc + t * c, cov + v
+            visible[j] = v
+    fill = push_pull_fill_torch(radiance, cov.clamp(max=1.0), u)
+    return acc / cov.clamp(min=1.0) + (1.0 - cov.clamp(max=1.0)) * fill
+
+
+def _pull(c: torch.Tensor, w: torch.Tensor, z: torch.Tensor):
+    """One depth-aware pull step of :func:`.model.push_pull_fill`."""
+    h, wd = w.shape[-2:]
+    pad = (0, wd % 2, 0, h % 2)
+    if any(pad):
+        c, w, z = F.pad(c, pad), F.pad(w, pad), F.pad(z, pad)
+    zmax = F.max_pool2d(torch.where(w > 0, z, torch.full_like(z, -torch.inf)), 2)
+    zmax = torch.where(torch.isinf(zmax), torch.zeros_like(zmax), zmax)
+    e = w * depth_factor(z - zmax.repeat_interleave(2, dim=-2).repeat_interleave(2, dim=-1))
+    se = F.avg_pool2d(e, 2)
+    inv = torch.where(se > WEIGHT_EPS / 4, 1.0 / se.clamp(min=WEIGHT_EPS / 4), torch.zeros_like(se))
+    return F.avg_pool2d(c * e, 2) * inv, F.avg_pool2d(w, 2), F.avg_pool2d(z * e, 2) * inv
+
+
+def _up(x: torch.Tensor, h: int, w: int) -> torch.Tensor:
+    return F.interpolate(x, scale_factor=2, mode="bilinear", align_corners=False)[..., :h, :w]
+
+
+def push_pull_fill_torch(colour: torch.Tensor, weight: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    """The fill of model step 5 (:func:`.model.push_pull_fill`), differentiable (avg-pool /
+    bilinear-interpolate pyramid).
+
+    colour: (B, C, H, W) straight colour; weight: (B, 1, H, W) in [0, 1]; depth: (B, 1, H, W)
+    layer coordinate. Returns (B, C, H, W).
+    """
+    levels = [(colour, weight, depth)]
+    while len(levels) < 2 or levels[-1][1].shape[-2:] != (1, 1):
+        levels.append(_pull(*levels[-1]))
+    f, g = levels[-1][0], levels[-1][2]
+    for c, w, z in reversed(levels[1:-1]):  # push down to level 1
+        h, wd = w.shape[-2:]
+        up = _up(torch.cat([f, g], dim=1), h, wd)
+        fu, gu = up[:, :-1], up[:, -1:]
+        m = torch.where(w > 0, torch.maximum(z, gu), gu)
+        a = w * depth_factor(z - m)
+        b = (1.0 - w) * depth_factor(gu - m)
+        inv = 1.0 / (a + b)
+        f, g = (a * c + b * fu) * inv, (a * z + b * gu) * inv
+    return _up(f, *weight.shape[-2:])

@@ -10,13 +10,18 @@ from rvr_addon.color import linear_to_srgb, srgb_to_linear
 from rvr_addon.errors import InputError
 from rvr_addon.render.aperture import ApertureSpec, kernel_half_size, load_kernel_image, make_kernel
 from rvr_addon.render.model import (
+    EXP_FLOOR,
+    FILL_DEPTH_SHARPNESS,
+    FILL_DEPTH_TOLERANCE,
     K_HDR,
     LAMBDA,
     MATTE_CUTOFF,
+    depth_factor,
     hdr_radiance,
     matte_normaliser,
     matte_unnormalised,
     plan_layers,
+    push_pull_fill,
     signed_radius,
 )
 
@@ -161,3 +166,37 @@ def test_kernel_image_errors_name_the_file(tmp_path):
     junk.write_bytes(b"not an image")
     with pytest.raises(InputError, match="junk.png"):
         load_kernel_image(junk)
+
+
+def test_fill_keeps_a_constant_and_prefers_the_background():
+    """The fill (model step 5) of a constant colour is that colour, whatever the weights and
+    depths; a poorly covered pixel takes the colour of what lies behind it, not of itself nor of
+    a nearer occluder, and surfaces within FILL_DEPTH_TOLERANCE steps count as one background."""
+    rng = np.random.default_rng(0)
+    w = rng.random((21, 30)) ** 2
+    z = rng.uniform(-8, 8, (21, 30))
+    const = np.broadcast_to(np.array([0.2, 1.5, 40.0]), (21, 30, 3))
+    assert np.allclose(push_pull_fill(const, w, z), const, rtol=1e-12)
+
+    colour = np.zeros((16, 16, 3))
+    colour[:, :8] = 1.0  # left half bright, right half dark
+    weight = np.ones((16, 16))
+    weight[6:10, 6:10] = 0.05  # a poorly covered hole across the edge
+    far = np.where(np.arange(16) < 8, 3.0, 0.0)[None, :].repeat(16, 0)  # bright half 3 steps farther
+    near = np.where(np.arange(16) < 8, 0.5, 0.0)[None, :].repeat(16, 0)  # within the tolerance
+    dark_side = np.s_[6:10, 8:10, 0]
+    assert push_pull_fill(colour, weight, far)[dark_side].mean() > push_pull_fill(colour, weight, near)[dark_side].mean() + 0.2
+    hole = np.ones((16, 16, 3))
+    hole[6:10, 6:10] = 80.0  # the hole pixel's own (occluder) colour is not used
+    weight_hole = np.ones((16, 16))
+    weight_hole[6:10, 6:10] = 0.1
+    depth_hole = np.zeros((16, 16))
+    depth_hole[6:10, 6:10] = -3.0
+    assert push_pull_fill(hole, weight_hole, depth_hole)[6:10, 6:10].max() < 1.5
+
+
+def test_depth_factor():
+    assert float(depth_factor(np.float64(0.0))) == 1.0
+    assert float(depth_factor(np.float64(-FILL_DEPTH_TOLERANCE))) == 1.0
+    assert float(depth_factor(np.float64(-FILL_DEPTH_TOLERANCE - 1.0))) == pytest.approx(math.exp(-FILL_DEPTH_SHARPNESS))
+    assert float(depth_factor(np.float64(-1e6))) == pytest.approx(math.exp(EXP_FLOOR))
