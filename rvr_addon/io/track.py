@@ -19,7 +19,8 @@ log = logging.getLogger(__name__)
 
 _FOCUS_COLUMNS = ("focus", "focus_disparity")
 _CSV_HELP = "a CSV needs a header row 'frame,focus[,aperture]' and one row per keyed frame"
-_JSON_HELP = 'JSON needs a list of {"frame": .., "focus": .., "aperture": ..} or {"keys": [...]}'
+_JSON_HELP = ('JSON needs a list of {"frame": .., "focus": .., "aperture": ..}, {"keys": [...]} or an '
+              '`rvr autofocus` focus file (with "per_frame")')
 
 
 @dataclass
@@ -118,6 +119,13 @@ def _load_json(path: Path) -> list[tuple[int, float, float]]:
         data = json.loads(path.read_text(encoding="utf-8-sig"))
     except json.JSONDecodeError as ex:
         raise InputError(f"Focus track '{path}', line {ex.lineno}: invalid JSON ({ex.msg}); {_JSON_HELP}.") from ex
+    if isinstance(data, dict):
+        interpolation = str(data.get("interpolation", "LINEAR")).upper()
+        if interpolation != "LINEAR":
+            raise InputError(f"Focus track '{path}': interpolation {data['interpolation']!r} is not supported; "
+                             "keys are interpolated linearly (use \"LINEAR\").")
+        if isinstance(data.get("per_frame"), dict):
+            return _load_per_frame(path, data["per_frame"])
     keys = data.get("keys") if isinstance(data, dict) else data
     if not isinstance(keys, list):
         raise InputError(f"Focus track '{path}': {_JSON_HELP}.")
@@ -131,6 +139,26 @@ def _load_json(path: Path) -> list[tuple[int, float, float]]:
         aperture = _number(key.get("aperture", 1.0), "aperture", where)
         _check_values(focus, aperture, where)
         rows.append((frame, focus, aperture))
+    return rows
+
+
+def _load_per_frame(path: Path, block: dict) -> list[tuple[int, float, float]]:
+    """Rows of a dense ``per_frame`` block ({"start", "focus": [...], "aperture": [...]}), as
+    ``rvr autofocus`` writes it (``laaf/focusfile.py``): one key per frame, exact."""
+    where = f"Focus track '{path}', per_frame"
+    focus, aperture = block.get("focus"), block.get("aperture")
+    if not isinstance(focus, list) or (aperture is not None and not isinstance(aperture, list)):
+        raise InputError(f"{where}: needs a 'focus' list (and an 'aperture' list of the same length).")
+    if aperture is not None and len(aperture) != len(focus):
+        raise InputError(f"{where}: {len(focus)} focus values but {len(aperture)} aperture values; give one per frame.")
+    start = _frame(block.get("start", 0), where)
+    rows = []
+    for i, f in enumerate(focus):
+        at = f"{where}, frame {start + i}"
+        value = _number(f, "focus", at)
+        ap = _number(aperture[i], "aperture", at) if aperture is not None else 1.0
+        _check_values(value, ap, at)
+        rows.append((start + i, value, ap))
     return rows
 
 

@@ -1,0 +1,18 @@
+"""Look-Ahead Autofocus (paper section 5): New Focus Targets, tracking, AI-assist detectors,
+focus pulls. No bpy here.
+
+Modules (one job each): ``nft`` (targets), ``tracking`` (KCF with loss reporting),
+``focus_reading`` (robust disparity of a box), ``puller`` (pull schedule and profiles),
+``keyframes`` (sparse linear keys for F-curves), ``detectors/`` (face, saliency, action,
+speech), ``combine`` (the paper's intersection + K-means + discontinuities), ``lookahead``
+(the streaming driver, look-ahead or causal), ``focusfile`` (the JSON ``rvr render`` reads),
+``evaluate`` (``rvr eval-focus``: paper section 6.2 metrics on harness clips).
+"""
+from __future__ import annotations
+
+from .keyframes import Key, evaluate_keys, keyframes
+from .nft import NFT, load_nfts, save_nfts, validate_nfts
+from .puller import PROFILES, PullSettings, PullTarget, compose_track, pull_weight
+
+__all__ = ["NFT", "load_nfts", "save_nfts", "validate_nfts", "Key", "keyframes", "evaluate_keys", "PROFILES",
+           "PullSettings", "PullTarget", "compose_track", "pull_weight"]

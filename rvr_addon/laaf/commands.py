@@ -1,0 +1,154 @@
+"""``rvr autofocus`` and ``rvr eval-focus`` (registered by ``rvr_addon/cli.py``)."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ..errors import RvrError
+
+
+def _pull_args(p: argparse.ArgumentParser) -> None:
+    from .puller import PROFILES
+
+    p.add_argument("--pull-frames", type=int, default=10, help="length of a focus pull in frames (default 10)")
+    p.add_argument("--lead-frames", type=int, default=5,
+                   help="the pull lands this many frames before the NFT (default 5)")
+    p.add_argument("--profile", choices=PROFILES, default="linear", help="pull profile (default linear, as the paper)")
+    p.add_argument("--hold-frames", type=int, default=12,
+                   help="after a subject is lost, hold its focus this long before releasing (default 12)")
+
+
+def _pull(args: argparse.Namespace):
+    from .puller import PullSettings
+
+    s = PullSettings(pull_frames=args.pull_frames, lead_frames=args.lead_frames, profile=args.profile,
+                     hold_frames=args.hold_frames, min_pull_frames=min(2, args.pull_frames))
+    try:
+        s.check()
+    except ValueError as ex:
+        raise RvrError(f"--{str(ex).split('=')[0].replace('_', '-')}: {ex}") from None
+    return s
+
+
+def add_autofocus_parser(sub) -> None:
+    """``rvr autofocus INPUT (--cache CACHE | --depth DEPTH) --preset P -o focus.json``."""
+    from .combine import PRESETS
+
+    p = sub.add_parser("autofocus", help="look-ahead autofocus: decide where and when to focus (focus.json)",
+                       description="Look-Ahead Autofocus (paper section 5): detectors (face, saliency, action, "
+                                   "speech) -> New Focus Targets -> KCF tracking -> focus pulls. Writes a focus "
+                                   "file that `rvr render --track` reads (per-frame track + linear keyframes).")
+    p.add_argument("input", type=Path, help="video file, image folder, glob or frame pattern")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--cache", type=Path, help="per-clip cache of `rvr estimate` (stabilised D preferred)")
+    src.add_argument("--depth", type=Path, help="disparity maps (anything `rvr render --depth` accepts)")
+    p.add_argument("--depth-scale", type=float, default=1.0, help="with --depth: multiply the maps")
+    p.add_argument("--depth-offset", type=float, default=0.0, help="with --depth: then add this")
+    p.add_argument("--preset", choices=tuple(PRESETS), default=None,
+                   help="AI-assist preset: action={action,saliency}, conversation={speech,face}, faces, salient")
+    p.add_argument("--targets", type=Path, help="manual NFTs (JSON: [{t, x, y, box, source}], 0-based frames)")
+    p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
+    p.add_argument("--causal", action="store_true", help="no look-ahead (window 0): what a camera could do")
+    _pull_args(p)
+    p.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the track (default 1.0)")
+    p.add_argument("--min-step", type=float, default=0.5,
+                   help="smallest focus change (disparity units) that makes an NFT (default 0.5)")
+    p.add_argument("--analysis-width", type=int, default=320, help="detector/tracker width in px (default 320)")
+    p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
+    p.add_argument("--stop", type=int, help="stop before this frame")
+    p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="focus file to write (.json)")
+    p.add_argument("--plot", type=Path, help="also write a PNG plot of the focus track")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_autofocus)
+
+
+def cmd_autofocus(args: argparse.Namespace) -> int:
+    from .focusfile import write_focus_file
+    from .lookahead import AutofocusJob, AutofocusSettings
+
+    if args.output.suffix.lower() != ".json":
+        raise RvrError(f"-o {args.output}: the focus file is JSON; give a name ending in .json")
+    settings = AutofocusSettings(
+        input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,
+        depth_offset=args.depth_offset, preset=args.preset, targets=args.targets, window_s=args.window,
+        causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
+        min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps)
+    job = AutofocusJob(settings)
+    try:
+        result = job.run(progress=not args.quiet)
+    except KeyboardInterrupt:
+        print("rvr autofocus: cancelled; nothing written", file=sys.stderr)
+        return 130
+    write_focus_file(args.output, result)
+    if args.plot:
+        plot_focus(args.plot, result)
+        print(f"wrote {args.plot}")
+    nfts = ", ".join(f"{n.t + result.start}({n.source})" for n in result.nfts)
+    note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""
+    print(f"wrote {args.output}: {len(result.focus)} frames, {len(result.keys)} keys, NFTs at {nfts}{note} "
+          f"({len(result.focus) / max(result.seconds, 1e-9):.1f} frames/s)")
+    return 0
+
+
+def plot_focus(path: Path, result) -> None:
+    """PNG of a focus track: focus disparity per frame, the raw detector level, the NFTs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    t = np.arange(len(result.focus)) + result.start
+    fig, ax = plt.subplots(figsize=(8, 3))
+    ax.plot(t, result.signal["raw"], ".", color="0.6", ms=3, label="detector level (raw)")
+    ax.plot(t, result.focus, "C0-", label="focus track")
+    ax.plot([k.frame + result.start for k in result.keys], [k.focus for k in result.keys], "C1o", ms=3,
+            label="keyframes")
+    for n in result.nfts:
+        ax.axvline(n.t + result.start, color="C2", ls=":", lw=1)
+        ax.text(n.t + result.start, ax.get_ylim()[1], n.source, fontsize=7, rotation=90, va="top")
+    ax.set_xlabel("frame")
+    ax.set_ylabel("focus disparity")
+    ax.set_title(f"{Path(result.clip.path).name}: {result.settings.get('preset_used') or 'manual'}"
+                 f"{' (causal)' if result.settings.get('causal') else ''}", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def add_eval_focus_parser(sub) -> None:
+    """``rvr eval-focus DATASET -o REPORT [--presets ...]``."""
+    from .combine import PRESETS
+
+    p = sub.add_parser("eval-focus", help="evaluate LAAF on harness clips (mean |dt|, mean |dd|)",
+                       description="Run look-ahead and causal LAAF per preset on each harness clip (ground-truth "
+                                   "disparity) and compare with the ground-truth NFTs (paper section 6.2): "
+                                   "summary.json, report.md and focus plots in REPORT.")
+    p.add_argument("dataset", type=Path, help="folder of harness clips (or one clip)")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="REPORT", help="report folder")
+    p.add_argument("--presets", nargs="+", choices=tuple(PRESETS), default=["action", "conversation"])
+    p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
+    _pull_args(p)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_eval_focus)
+
+
+def cmd_eval_focus(args: argparse.Namespace) -> int:
+    from .evaluate import evaluate
+
+    summary = evaluate(args.dataset, args.output, args.presets, _pull(args), args.window, progress=not args.quiet)
+    for p in args.presets:
+        g = summary.get
+        print(f"{p}: look-ahead mean|dt| {g(f'focus.{p}.mean_dt_frames')} frames, mean|dd| {g(f'focus.{p}.mean_dd')}; "
+              f"causal mean|dt| {g(f'focus.{p}.causal.mean_dt_frames')}, mean|dd| {g(f'focus.{p}.causal.mean_dd')}")
+    print(f"wrote {args.output / 'summary.json'}, {args.output / 'report.md'}")
+    return 0
+
+
+def add_parsers(sub) -> None:
+    """Register the LAAF commands on the ``rvr`` sub-parsers."""
+    add_autofocus_parser(sub)
+    add_eval_focus_parser(sub)

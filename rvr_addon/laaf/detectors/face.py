@@ -1,0 +1,169 @@
+"""Face detector H_face: dlib's HOG frontal face detector (as the paper used dlib), or OpenCV's
+Haar cascades (frontal + profile, shipped in ``cv2.data.haarcascades``) when dlib is missing.
+
+Faces are detected every ``every`` frames (boxes are held in between) and linked into face
+tracks by overlap, so the speech detector can follow each face's mouth. The heat map is 1
+inside each face box. Boxes are in analysis px.
+"""
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from collections import OrderedDict
+
+import numpy as np
+
+from ..nft import Box
+from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
+
+log = logging.getLogger(__name__)
+
+
+def _iou(a: Box, b: Box) -> float:
+    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
+    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
+    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
+    union = a[2] * a[3] + b[2] * b[3] - inter
+    return inter / union if union > 0 else 0.0
+
+
+def _nms(boxes: list[Box], thresh: float = 0.3) -> list[Box]:
+    kept: list[Box] = []
+    for b in sorted(boxes, key=lambda b: -b[2] * b[3]):
+        if all(_iou(b, k) < thresh for k in kept):
+            kept.append(b)
+    return kept
+
+
+@functools.lru_cache(maxsize=1)
+def _dlib_detector():
+    """dlib's HOG face detector (loading it takes ~1.5 s: built once per process)."""
+    import dlib
+
+    return dlib.get_frontal_face_detector()
+
+
+class FaceBackend:
+    """Raw face boxes of one grey frame: dlib HOG ('dlib') or Haar cascades ('haar')."""
+
+    def __init__(self, backend: str = "auto", min_face_px: int = 24, dlib_threshold: float = 0.0) -> None:
+        self.min_face_px = min_face_px
+        self.dlib_threshold = dlib_threshold
+        self.kind = backend
+        if backend in ("auto", "dlib"):
+            try:
+                self._dlib = _dlib_detector()
+                self.kind = "dlib"
+            except ImportError:
+                if backend == "dlib":
+                    raise RuntimeError("dlib is not installed: pip install -r requirements.txt (dlib-bin), "
+                                       "or use the Haar cascades (backend='haar')") from None
+                self.kind = "haar"
+        if self.kind == "haar":
+            import cv2
+
+            root = cv2.data.haarcascades
+            self._front = cv2.CascadeClassifier(root + "haarcascade_frontalface_default.xml")
+            self._profile = cv2.CascadeClassifier(root + "haarcascade_profileface.xml")
+            if self._front.empty():
+                raise RuntimeError(f"OpenCV's Haar cascades are missing from {root}; reinstall opencv-contrib")
+
+    def detect(self, gray: np.ndarray) -> list[Box]:
+        """Face boxes (x, y, w, h) px of a (H, W) uint8 frame."""
+        import cv2
+
+        h, w = gray.shape
+        if self.kind == "dlib":
+            # dlib's HOG window is 80 px: upsample (x2 per step) until faces of min_face_px are found
+            up = int(np.clip(np.ceil(np.log2(80.0 / max(self.min_face_px, 1))), 0, 3))
+            rects, scores, _ = self._dlib.run(gray, up, self.dlib_threshold)
+            boxes = [(float(r.left()), float(r.top()), float(r.width()), float(r.height())) for r in rects]
+        else:
+            m = self.min_face_px
+            boxes = [tuple(map(float, b)) for b in self._front.detectMultiScale(gray, 1.1, 4, minSize=(m, m))]
+            if not self._profile.empty():
+                boxes += [tuple(map(float, b)) for b in self._profile.detectMultiScale(gray, 1.1, 4, minSize=(m, m))]
+                flipped = self._profile.detectMultiScale(np.ascontiguousarray(gray[:, ::-1]), 1.1, 4, minSize=(m, m))
+                boxes += [(float(w - x - bw), float(y), float(bw), float(bh)) for x, y, bw, bh in flipped]
+            boxes = _nms(boxes)
+        return [b for b in boxes if min(b[2], b[3]) >= self.min_face_px * 0.6]
+
+
+class FaceDetector(FocusDetector):
+    """H_face with face tracks (ids ``face0``, ``face1``...); see the module docstring.
+
+    every: detect on every n-th frame (held in between). min_face_px: smallest face side in
+    analysis px (sets dlib's upsampling: 24 px at a 320 px analysis width means x4). forget_s: a face track not seen for
+    this long is dropped. keep_frames: how many past frames of boxes are kept for ``faces_at``.
+    """
+
+    name = "face"
+
+    def __init__(self, backend: str = "auto", every: int = 6, forget_s: float = 1.0, keep_frames: int = 256,
+                 min_face_px: int = 24) -> None:
+        self.backend = FaceBackend(backend, min_face_px=min_face_px)
+        self.every = max(1, int(every))
+        self.forget_s = forget_s
+        self.keep_frames = keep_frames
+        self._tracks: dict[str, tuple[Box, int]] = {}  # id -> (box, last frame seen)
+        self._next_id = 0
+        self._held: list[Box] = []
+        self._at: OrderedDict[int, list[tuple[Box, float, str | None]]] = OrderedDict()
+        self._shape: tuple[int, int] = (0, 0)
+        self._seconds = 0.0
+        self._detections = 0
+        self._frames_with_faces = 0
+
+    def _associate(self, boxes: list[Box], t: int, fps: float) -> list[tuple[Box, float, str | None]]:
+        out = []
+        free = dict(self._tracks)
+        for b in sorted(boxes, key=lambda b: -b[2] * b[3]):
+            best, best_score = None, 0.0
+            for tid, (tb, _) in free.items():
+                score = _iou(b, tb)
+                cx, cy = b[0] + b[2] / 2 - tb[0] - tb[2] / 2, b[1] + b[3] / 2 - tb[1] - tb[3] / 2
+                if score < 0.2 and np.hypot(cx, cy) < 0.6 * max(tb[2], tb[3]):
+                    score = 0.2
+                if score > best_score:
+                    best, best_score = tid, score
+            if best is None or best_score < 0.2:
+                best = f"face{self._next_id}"
+                self._next_id += 1
+            else:
+                free.pop(best)
+            self._tracks[best] = (b, t)
+            out.append((b, 1.0, best))
+        limit = self.forget_s * fps
+        self._tracks = {k: v for k, v in self._tracks.items() if t - v[1] <= limit}
+        return out
+
+    def process(self, t: int, frame: AnalysisFrame) -> None:
+        self._shape = frame.gray.shape
+        if t % self.every == 0 or not self._at:
+            start = time.perf_counter()
+            boxes = self.backend.detect(frame.gray)
+            self._seconds += time.perf_counter() - start
+            self._detections += 1
+            faces = self._associate(boxes, t, frame.fps)
+        else:
+            faces = list(self._at[next(reversed(self._at))])
+            # keep held tracks alive
+        if faces:
+            self._frames_with_faces += 1
+        self._at[t] = faces
+        while len(self._at) > self.keep_frames:
+            self._at.popitem(last=False)
+
+    def faces_at(self, t: int) -> list[tuple[Box, float, str | None]]:
+        """Face boxes with track ids on frame t (empty if none or forgotten)."""
+        return self._at.get(t, [])
+
+    def output(self, t: int) -> DetectorOutput:
+        faces = self.faces_at(t)
+        return DetectorOutput(boxes_heat(self._shape, faces), faces)
+
+    def metrics(self) -> dict:
+        return {"backend": self.backend.kind, "detections": self._detections,
+                "frames_with_faces": self._frames_with_faces, "face_tracks": self._next_id,
+                "s_per_detection": self._seconds / max(self._detections, 1)}

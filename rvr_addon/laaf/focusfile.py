@@ -1,0 +1,82 @@
+"""The focus file ``rvr autofocus`` writes and ``rvr render --track`` reads.
+
+A JSON object, a compatible extension of the focus-track JSON of ``io/track.py``::
+
+    {"format": "rvr-laaf-focus/1",
+     "interpolation": "LINEAR", "extrapolation": "CONSTANT",
+     "keys":  [{"frame": 0, "focus": 1.93, "aperture": 1.0}, ...],   # sparse, 0-based clip index
+     "per_frame": {"start": 0, "focus": [...], "aperture": [...]},     # the exact track
+     "nfts": [{"t": 17, "x": .., "y": .., "box": [x, y, w, h], "source": "action",
+               "known_at": 0, ...}, ...],
+     "tracking": [{"target": 1, "frame": 30, "status": "lost", ...}], "signal": {...},
+     "detectors": {...}, "settings": {...}, "clip": {...}}
+
+``keys`` reproduce ``per_frame`` within ``keyframe_tol`` (0.05 disparity units) under linear
+interpolation (``keyframes.py``); ``rvr render`` uses ``per_frame`` when present and the keys
+otherwise, so a hand-edited file with only ``keys`` works too.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..io.paths import temp_sibling
+from .keyframes import EXTRAPOLATION, INTERPOLATION
+
+FOCUS_FORMAT = "rvr-laaf-focus/1"
+
+
+def _floats(a) -> list:
+    return [None if not np.isfinite(v) else round(float(v), 5) for v in np.asarray(a, dtype=np.float64)]
+
+
+def focus_document(result) -> dict:
+    """The JSON document of an AutofocusResult (see the module docstring)."""
+    clip = result.clip
+    return {
+        "format": FOCUS_FORMAT,
+        "interpolation": INTERPOLATION,
+        "extrapolation": EXTRAPOLATION,
+        "units": {"focus": "disparity: px of blur radius at aperture 1 at the native width (DESIGN.md)",
+                  "frame": "0-based clip index", "box": "[x, y, w, h] px of the native frame"},
+        "keys": [{"frame": k.frame + result.start, "focus": round(k.focus, 5), "aperture": round(k.aperture, 5)}
+                 for k in result.keys],
+        "per_frame": {"start": result.start, "focus": _floats(result.focus), "aperture": _floats(result.aperture)},
+        "nfts": [{**n.to_json(), "t": n.t + result.start, "known_at": n.known_at + result.start}
+                 for n in result.nfts],
+        "pulls": [{"target": p.index, "start": p.start + result.start, "end": p.end + result.start,
+                   "note": p.note} for p in result.composed.pulls],
+        "tracking": result.tracking,
+        "signal": {"raw_level": _floats(result.signal["raw"]), "held_level": _floats(result.signal["held"])},
+        "detectors": result.detectors,
+        "settings": result.settings,
+        "clip": {"path": str(clip.path), "width": clip.width, "height": clip.height, "fps": clip.fps,
+                 "frames": len(result.focus), "start": result.start},
+        "seconds": round(result.seconds, 3),
+    }
+
+
+def write_focus_file(path: str | Path, result) -> Path:
+    """Write the focus file atomically (temp file + rename); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_sibling(path, ".json")
+    try:
+        tmp.write_text(json.dumps(focus_document(result), indent=1, default=_default))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def _default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"{type(o)} is not JSON serialisable")

@@ -1,0 +1,503 @@
+"""The LAAF driver: frames -> detectors -> focus signal -> NFTs -> tracking -> focus track.
+
+:class:`AutofocusJob` owns the stream (STYLE.md: one driver owns the window). Frames are read
+as a generator and kept only in a bounded ring buffer at the analysis resolution (default 320
+px wide) for as long as tracking may still need them (a few dozen frames); disparity is read
+per frame. Decisions for output frame t may use frames up to ``t + window`` (look-ahead,
+default 2 s); with ``causal`` the window is 0, which is what a camera's autofocus can do.
+
+How the window enters: every NFT records ``known_at``, the first *output* frame at which the
+system knew of it: the frame whose analysis revealed it (ingest time) minus the window. A pull
+never starts before ``known_at`` (``puller.schedule_pulls``), so with a window of W frames the
+pull to a target at t can be placed before t only if the target was visible by t + W; in causal
+mode every pull starts after the evidence, i.e. late. The focus of frame t is final once frame
+t + W has been analysed; ``AutofocusResult`` holds the whole (small) per-frame track.
+
+Manual NFTs (``nfts``/``targets``) are tracked from their frame (forward to the next NFT,
+backward over the pull before it); with a preset as well, automatic NFTs closer than
+``pull_frames`` to a manual one are dropped (the user wins).
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.video import ClipInfo, iter_frames, probe_clip
+from .combine import FALLBACKS, PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
+from .depth import DisparitySource
+from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
+from .focus_reading import read_focus
+from .keyframes import Key, keyframes
+from .nft import NFT, Box, load_nfts, validate_nfts
+from .puller import ComposedTrack, PullSettings, PullTarget, compose_track
+from .tracking import SubjectTracker
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class AutofocusSettings:
+    """Everything ``rvr autofocus`` needs.
+
+    input: video or image sequence. cache / depth: the disparity source (one of them).
+    preset: 'action', 'conversation', 'faces', 'salient' or None (manual NFTs only).
+    targets / nfts: manual NFTs (JSON file or list, native px, 0-based frames).
+    window_s: look-ahead in seconds (default 2.0); causal: window 0.
+    pull: pull length, lead, profile, hold. aperture: aperture scale of the track (>= 0).
+    analysis_width: px width the detectors and the tracker work at (frames are shrunk to it).
+    min_step: smallest focus change (disparity units) that makes an NFT.
+    min_area: smallest focus region, as a fraction of the frame.
+    keyframe_tol: the keyframes reproduce the track within this (disparity units).
+    """
+
+    input: Path
+    cache: Path | None = None
+    depth: Path | None = None
+    depth_scale: float = 1.0
+    depth_offset: float = 0.0
+    preset: str | None = "conversation"
+    targets: Path | None = None
+    nfts: list[NFT] | None = None
+    window_s: float = 2.0
+    causal: bool = False
+    pull: PullSettings = field(default_factory=PullSettings)
+    aperture: float = 1.0
+    analysis_width: int = 320
+    min_step: float = 0.5
+    min_area: float = 0.01
+    start: int = 0
+    stop: int | None = None
+    fps: float | None = None
+    face_backend: str = "auto"
+    face_every: int = 6
+    speech_window_s: float = 1.0
+    keyframe_tol: float = 0.05
+
+
+@dataclass
+class TargetState:
+    """A focus target being tracked: its NFT, per-frame level (NaN = unknown) and trackers."""
+
+    nft: NFT
+    level: np.ndarray
+    box_analysis: Box
+    tracker: SubjectTracker | None = None
+    lost_from: int | None = None
+    active: bool = True
+    events: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class AutofocusResult:
+    """focus, aperture: (n,) per frame (DESIGN units / scale); keys: linear keyframes;
+    nfts: targets in frame order (the first is the initial focus); tracking: loss,
+    re-initialisation and exit events; signal: per-frame raw and held focus level of the
+    detector combination (NaN = empty); detectors: metrics; clip: ClipInfo; start: first frame."""
+
+    focus: np.ndarray
+    aperture: np.ndarray
+    keys: list[Key]
+    nfts: list[NFT]
+    tracking: list[dict]
+    signal: dict
+    detectors: dict
+    composed: ComposedTrack
+    clip: ClipInfo
+    start: int
+    settings: dict
+    seconds: float
+
+
+class AutofocusJob:
+    """Stepwise LAAF over one clip: ``while job.step(): pass``, then ``job.result``."""
+
+    def __init__(self, settings: AutofocusSettings) -> None:
+        s = self.settings = settings
+        s.pull.check()
+        if s.preset is None and s.targets is None and s.nfts is None:
+            raise InputError("rvr autofocus needs --preset or --targets NFTS.json (or both)")
+        if s.preset is not None and s.preset not in PRESETS:
+            raise InputError(f"--preset {s.preset!r} is not known; use one of {', '.join(PRESETS)}")
+        if not (np.isfinite(s.aperture) and s.aperture >= 0):
+            raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
+        if s.window_s < 0:
+            raise InputError(f"--window {s.window_s} must be >= 0 seconds (0 = causal)")
+        self.clip = probe_clip(s.input, fps=s.fps)
+        stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
+        if s.start < 0 or s.start >= stop:
+            raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} ({self.clip.frame_count} frames)")
+        self.start, self.stop = s.start, stop
+        self.n = stop - s.start
+        self.fps = self.clip.fps
+        self.depth = DisparitySource(cache=s.cache, depth=s.depth, scale=s.depth_scale, offset=s.depth_offset)
+        self.depth.check_length(self.n, self.start)
+        self.scale = min(1.0, s.analysis_width / self.clip.width)
+        self.size = (max(int(round(self.clip.width * self.scale)), 8), max(int(round(self.clip.height * self.scale)), 8))
+        self.window = 0 if s.causal else int(round(s.window_s * self.fps))
+        self.causal = s.causal or self.window == 0
+        manual = list(s.nfts or [])
+        if s.targets is not None:
+            manual += load_nfts(s.targets, self.clip.width, self.clip.height)
+        manual = [NFT(n.x, n.y, n.t - self.start, n.box, n.source, 0, n.confidence, n.aperture, n.subject)
+                  for n in manual] if self.start else manual
+        self.manual = validate_nfts(manual, self.n, self.clip.width, self.clip.height,
+                                    where=f"NFTs of '{s.targets}'" if s.targets else "NFTs") if manual else []
+        self.preset_used: str | None = s.preset
+        self.fallback_note = ""
+        self.detectors: dict[str, FocusDetector] = {}
+        self._build_detectors()
+        self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
+                                          causal=self.causal)
+        self.detector_lag = max([d.lookahead_frames for n, d in self.detectors.items()
+                                 if n in self._combo] or [0])
+        keep = self.detector_lag + self.step_detector.delay + 3 + s.pull.lead_frames + s.pull.pull_frames + 4
+        self.buffer: deque[AnalysisFrame] = deque(maxlen=keep)
+        self.targets: list[TargetState] = []
+        # a tracked subject's reading may move this much per frame (disparity units); more is
+        # the box slipping onto another surface: ignored, the level is held
+        self.max_jump = max(0.5, s.min_step)
+        self.regions: dict[int, Region | None] = {}
+        self.raw = np.full(self.n, np.nan, np.float32)
+        self.held = np.full(self.n, np.nan, np.float32)
+        self._frames = None
+        self._k = 0
+        self._measured = 0
+        self._finished = False
+        self.result: AutofocusResult | None = None
+        self._t0 = time.perf_counter()
+        self._timings = {"decode_s": 0.0, "depth_s": 0.0, "detect_s": 0.0, "combine_s": 0.0, "track_s": 0.0}
+        self.text = f"autofocus on {self.n} frames of {self.clip.path.name}"
+
+    # -- setup ------------------------------------------------------------------------------
+    def _build_detectors(self) -> None:
+        s = self.settings
+        if s.preset is None:
+            self._combo: tuple[str, ...] = ()
+            return
+        names = list(PRESETS[s.preset])
+        from .detectors.action import ActionDetector
+        from .detectors.face import FaceDetector
+        from .detectors.saliency import SaliencyDetector
+        from .detectors.speech import SpeechDetector
+
+        face = None
+        if "face" in names or "speech" in names:
+            face = FaceDetector(backend=s.face_backend, every=s.face_every)
+            self.detectors["face"] = face
+        if "saliency" in names:
+            self.detectors["saliency"] = SaliencyDetector()
+        if "action" in names:
+            self.detectors["action"] = ActionDetector()
+        if "speech" in names:
+            media = self.clip.path if self.clip.kind == "video" and self.clip.has_audio else None
+            speech = SpeechDetector(face, self.fps, self.n, media=media, start_frame=self.start,
+                                    window_s=s.speech_window_s, causal=self.causal)
+            if media is None:
+                speech.available = False
+                speech.unavailable_reason = f"speech detector off: '{self.clip.path}' has no audio track"
+                log.warning("%s; preset %s falls back to %s", speech.unavailable_reason, s.preset,
+                            FALLBACKS.get(s.preset))
+            self.detectors["speech"] = speech
+            if not speech.available:
+                names.remove("speech")
+                self.preset_used = FALLBACKS.get(s.preset, s.preset)
+                self.fallback_note = f"{speech.unavailable_reason}; preset {s.preset} fell back to {self.preset_used}"
+        self._combo = tuple(names)
+
+    # -- stream -----------------------------------------------------------------------------
+    @property
+    def progress(self) -> float:
+        """Fraction of frames analysed, 0..1."""
+        return self._k / self.n if self.n else 1.0
+
+    def _analysis_frame(self, rgb: np.ndarray, k: int) -> AnalysisFrame:
+        import cv2
+
+        t0 = time.perf_counter()
+        small = rgb if self.scale == 1.0 else cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
+        gray = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+        t1 = time.perf_counter()
+        disp = self.depth.get(self.start + k, self.size)
+        self._timings["depth_s"] += time.perf_counter() - t1
+        self._timings["decode_s"] += t1 - t0
+        return AnalysisFrame(k, small, gray, disp, self.scale, self.fps)
+
+    def _frame(self, k: int) -> AnalysisFrame | None:
+        for f in self.buffer:
+            if f.t == k:
+                return f
+        return None
+
+    def step(self) -> bool:
+        """Analyse the next frame; returns False once the whole clip is done (result ready)."""
+        if self._finished:
+            return False
+        if self._frames is None:
+            self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
+        t0 = time.perf_counter()
+        rgb = next(self._frames, None)
+        self._timings["decode_s"] += time.perf_counter() - t0
+        if rgb is None or self._k >= self.n:
+            if self._k < self.n:
+                raise InputError(f"{self.settings.input} ended after {self._k} of {self.n} frames")
+            self._finish()
+            return False
+        if (rgb.shape[1], rgb.shape[0]) != (self.clip.width, self.clip.height):
+            raise InputError(f"frame {self._k} of {self.settings.input} has another size than the first frame")
+        k = self._k
+        af = self._analysis_frame(rgb, k)
+        self.buffer.append(af)
+        t0 = time.perf_counter()
+        for det in self.detectors.values():
+            if det.available:
+                det.process(k, af)
+        self._timings["detect_s"] += time.perf_counter() - t0
+        while self._measured <= k - self.detector_lag:
+            self._measure(self._measured, ingest=k)
+            self._measured += 1
+        for nft in self.manual:
+            if nft.t == k:
+                self._add_target(nft, self._to_analysis(nft.box), k, ingest=k)
+        self._track(af)
+        self._k += 1
+        return True
+
+    def _finish(self) -> None:
+        for det in self.detectors.values():
+            det.flush()
+        last = self._k - 1
+        while self._measured <= last:
+            self._measure(self._measured, ingest=last)
+            self._measured += 1
+        if self._combo:
+            for st in self.step_detector.finish():
+                self._commit(st, ingest=last)
+        self._finished = True
+        self.result = self._compose()
+
+    # -- measurement ------------------------------------------------------------------------
+    def _measure(self, m: int, ingest: int) -> None:
+        if not self._combo:
+            return
+        af = self._frame(m)
+        if af is None:  # pragma: no cover - the buffer is sized for the lag
+            raise RuntimeError(f"frame {m} left the analysis buffer too early")
+        t0 = time.perf_counter()
+        outputs: dict[str, DetectorOutput] = {n: self.detectors[n].output(m) for n in self._combo}
+        mask, used = intersect(outputs, PRIMARY.get(self.preset_used or ""), self.settings.min_area)
+        region = majority_region(mask, self.settings.min_area) if mask is not None else None
+        if region is not None:
+            region.detectors = used
+        level = region_level(af.disparity, region) if region is not None else float("nan")
+        self.regions[m] = region
+        for old in [k for k in self.regions if k < m - self.buffer.maxlen]:
+            del self.regions[old]
+        self.raw[m] = level
+        if m == 0 and not any(t.nft.t == 0 for t in self.targets):
+            self._initial_target(af, region, level, ingest)
+            if not math.isfinite(level):
+                level = float(self.targets[0].level[0]) if self.targets else level
+        self._timings["combine_s"] += time.perf_counter() - t0
+        for st in self.step_detector.push(level):
+            self._commit(st, ingest)
+        self.held[m] = self.step_detector.held[m]
+
+    def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int) -> None:
+        """The focus before the first NFT: the preset's region on frame 0, else the largest face,
+        else the salient majority region (see combine.INITIAL_CHAIN)."""
+        if any(n.t == 0 for n in self.manual):
+            return
+        source = self._source(region.detectors) if region is not None else None
+        if region is None:
+            from .detectors.face import FaceDetector
+            from .detectors.saliency import SaliencyDetector
+
+            face = self.detectors.get("face")
+            boxes = face.faces_at(0) if isinstance(face, FaceDetector) else []
+            if not boxes:
+                try:
+                    boxes = [(b, 1.0, None) for b in FaceDetector(backend=self.settings.face_backend).backend.detect(af.gray)]
+                except RuntimeError:
+                    boxes = []
+            if boxes:
+                box = max((b for b, _, _ in boxes), key=lambda b: b[2] * b[3])
+                mask = np.zeros(af.gray.shape, bool)
+                x, y, w, h = (int(round(v)) for v in box)
+                mask[max(y, 0):y + h, max(x, 0):x + w] = True
+                region = Region(box[0] + box[2] / 2, box[1] + box[3] / 2, box, mask, float(mask.mean()), ("face",))
+                source = "face"
+            else:
+                sal = self.detectors.get("saliency") or SaliencyDetector()
+                heat = sal.compute(af.rgb) if isinstance(sal, SaliencyDetector) else None
+                region = majority_region(heat >= 0.5, self.settings.min_area) if heat is not None else None
+                source = "saliency"
+        if region is None:  # nothing anywhere: the centre of the frame
+            h, w = af.gray.shape
+            box = (w * 0.4, h * 0.4, w * 0.2, h * 0.2)
+            mask = np.zeros((h, w), bool)
+            mask[int(h * 0.4):int(h * 0.6), int(w * 0.4):int(w * 0.6)] = True
+            region = Region(w / 2, h / 2, box, mask, 0.04, ())
+            source = "initial"
+        nft = self._nft_from_region(region, 0, source, known_at=0, subject=None)
+        self._add_target(nft, region.box, 0, ingest, mask=region.mask)
+
+    def _source(self, used: tuple[str, ...]) -> str:
+        for name in ("speech", "action", "face", "saliency"):
+            if name in used:
+                return name
+        return "initial"
+
+    def _to_analysis(self, box: Box) -> Box:
+        return tuple(v * self.scale for v in box)
+
+    def _nft_from_region(self, region: Region, t: int, source: str, known_at: int, subject) -> NFT:
+        s = self.scale
+        box = tuple(v / s for v in region.box)
+        return NFT(region.x / s, region.y / s, t, box, source, known_at=known_at, subject=subject)
+
+    def _commit(self, step, ingest: int) -> None:
+        e = step.frame
+        region = None
+        for k in range(e, min(e + 4, self._measured)):
+            r = self.regions.get(k)
+            if r is not None and abs(region_level(self._frame(k).disparity, r) - step.after) < max(0.5, 0.5 * abs(step.after - step.before)):
+                region, e_region = r, k
+                break
+        if region is None:
+            log.debug("step at frame %d has no region near its new level; skipped", e)
+            return
+        known_at = max(0, ingest - self.window)
+        if any(abs(n.t - e) < self.settings.pull.pull_frames for n in self.manual):
+            return
+        outputs_tid = None
+        speech = self.detectors.get("speech")
+        if speech is not None and speech.available and "speech" in region.detectors:
+            outputs_tid = speech.decide(e_region)[2]
+        nft = self._nft_from_region(region, e, self._source(region.detectors), known_at, outputs_tid)
+        nft = NFT(nft.x, nft.y, nft.t, nft.box, nft.source, nft.known_at,
+                  confidence=float(min(1.0, abs(step.after - step.before) / (2 * self.settings.min_step))),
+                  subject=outputs_tid, detail={"level_before": round(step.before, 4), "level_after": round(step.after, 4)})
+        self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
+
+    # -- targets and tracking -----------------------------------------------------------------
+    def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:
+        return read_focus(af.disparity, box, mask, prior=prior).value
+
+    def _add_target(self, nft: NFT, box: Box, t_box: int, ingest: int, mask=None) -> None:
+        """Start tracking a new target from frame t_box (analysis box), backwards over its pull
+        and forwards up to the newest frame in the buffer."""
+        t0 = time.perf_counter()
+        tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box)
+        af = self._frame(t_box)
+        tg.tracker = SubjectTracker()
+        tg.tracker.start(af.rgb, box, t_box)
+        tg.level[t_box] = self._read(af, box, mask)
+        # backwards over the frames the pull to this target may use
+        p = self.settings.pull
+        back = SubjectTracker()
+        back.start(af.rgb, box, t_box)
+        for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, 0) - 1, -1):
+            f = self._frame(k)
+            if f is None:
+                break
+            state = back.update(f.rgb, k)
+            if not state.ok:
+                break
+            value = self._read(f, state.box, prior=float(tg.level[k + 1]))
+            if abs(value - float(tg.level[k + 1])) > self.max_jump:
+                tg.events.append({"frame": k, "status": "depth_jump", "score": round(value, 3), "direction": "backward"})
+                break  # e.g. a subject not yet in frame: the box sees what is behind it
+            tg.level[k] = value
+        for ev in back.events:
+            tg.events.append({"frame": ev.frame, "status": ev.status, "score": round(ev.score, 3),
+                              "direction": "backward"})
+        # retire the previous target (its level no longer matters after this NFT)
+        for other in self.targets:
+            if other.active and other.nft.t < nft.t:
+                other.active = False
+        self.targets.append(tg)
+        self.targets.sort(key=lambda x: x.nft.t)
+        for k in range(t_box + 1, ingest + 1):
+            f = self._frame(k)
+            if f is not None:
+                self._update_target(tg, f)
+        self._timings["track_s"] += time.perf_counter() - t0
+
+    def _update_target(self, tg: TargetState, af: AnalysisFrame) -> None:
+        state = tg.tracker.update(af.rgb, af.t)
+        if state.ok:
+            known = tg.level[:af.t]
+            prior = known[np.isfinite(known)][-1] if np.isfinite(known).any() else None
+            value = self._read(af, state.box, prior=prior)
+            if prior is not None and abs(value - prior) > self.max_jump:
+                tg.events.append({"frame": af.t, "status": "depth_jump", "score": round(value, 3),
+                                  "direction": "forward"})
+            else:
+                tg.level[af.t] = value
+        if state.status != "tracked":
+            tg.events.append({"frame": af.t, "status": state.status, "score": round(state.score, 3),
+                              "direction": "forward"})
+        if tg.lost_from is None and tg.tracker.frames_lost >= self.settings.pull.hold_frames:
+            tg.lost_from = af.t - tg.tracker.frames_lost + 1
+            log.info("target of frame %d lost from frame %d (%s): holding its focus, then releasing",
+                     tg.nft.t, tg.lost_from, state.status)
+
+    def _track(self, af: AnalysisFrame) -> None:
+        t0 = time.perf_counter()
+        for tg in self.targets:
+            if tg.active and tg.tracker is not None and tg.tracker.state.frame < af.t:
+                self._update_target(tg, af)
+        self._timings["track_s"] += time.perf_counter() - t0
+
+    # -- result ---------------------------------------------------------------------------------
+    def _compose(self) -> AutofocusResult:
+        s = self.settings
+        if not self.targets:
+            raise InputError(f"no focus target in {s.input}: nothing was found by preset {s.preset}; give NFTs "
+                             "with --targets")
+        pts = []
+        for tg in self.targets:
+            level = tg.level.copy()
+            if not np.isfinite(level).any():
+                level[tg.nft.t] = float(np.nanmedian(self.held)) if np.isfinite(self.held).any() else 0.0
+            pts.append(PullTarget(tg.nft.t, level, known_at=tg.nft.known_at, lost_from=tg.lost_from,
+                                  aperture=tg.nft.aperture))
+        composed = compose_track(pts, self.n, s.pull, aperture=s.aperture)
+        keys = keyframes(composed.focus, composed.aperture, tol=s.keyframe_tol)
+        tracking = []
+        for i, tg in enumerate(self.targets):
+            for ev in tg.events:
+                tracking.append({"target": i, **ev})
+        metrics = {n: d.metrics() for n, d in self.detectors.items()}
+        if self._combo and "face" in self.detectors and not self.detectors["face"].metrics()["frames_with_faces"]:
+            log.warning("no face was found in %s; the %s preset had nothing to intersect with faces",
+                        s.input, s.preset)
+        seconds = time.perf_counter() - self._t0
+        settings = {"preset": s.preset, "preset_used": self.preset_used if self._combo else None,
+                    "fallback": self.fallback_note or None, "window_s": 0.0 if self.causal else s.window_s,
+                    "window_frames": self.window, "causal": self.causal, "pull_frames": s.pull.pull_frames,
+                    "lead_frames": s.pull.lead_frames, "profile": s.pull.profile, "hold_frames": s.pull.hold_frames,
+                    "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
+                    "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
+                    "timings_s": {k: round(v, 3) for k, v in self._timings.items()}}
+        return AutofocusResult(composed.focus, composed.aperture, keys, [t.nft for t in self.targets], tracking,
+                               {"raw": self.raw, "held": self.held}, metrics, composed, self.clip, self.start,
+                               settings, seconds)
+
+    def run(self, progress: bool = True) -> AutofocusResult:
+        """Run to the end (tqdm progress bar when ``progress``); returns the result."""
+        from tqdm import tqdm
+
+        with tqdm(total=self.n, unit="frame", disable=not progress, desc="autofocus") as bar:
+            while self.step():
+                bar.update(1)
+            bar.update(self.n - bar.n)
+        assert self.result is not None
+        return self.result

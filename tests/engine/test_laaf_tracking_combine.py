@@ -1,0 +1,156 @@
+"""LAAF: KCF tracking with loss reporting, focus reading, the detector combination, steps -> NFTs."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from laaf_synth import entering_square, texture
+from rvr_addon.laaf.combine import StepDetector, intersect, majority_region
+from rvr_addon.laaf.detectors.base import DetectorOutput
+from rvr_addon.laaf.focus_reading import read_focus
+from rvr_addon.laaf.tracking import SubjectTracker
+
+
+def moving_sequence(n=30, size=(160, 96), side=24, vx=2.0, vy=1.0, hide=None):
+    """Textured square moving with known velocity over a textured background; frames in
+    ``hide`` have the square removed (occlusion)."""
+    w, h = size
+    bg = (texture(h, w, 11) * 0.4 + 50).astype(np.uint8)
+    obj = texture(side, side, 12)
+    frames, boxes = [], []
+    for k in range(n):
+        x, y = 20 + vx * k, 30 + vy * k
+        f = bg.copy()
+        if not (hide and k in hide):
+            xi, yi = int(round(x)), int(round(y))
+            xe = min(xi + side, w)
+            if xi < w:
+                f[yi:yi + side, xi:xe] = obj[:, :xe - xi]
+        frames.append(f)
+        boxes.append((x, y, side, side))
+    return frames, boxes
+
+
+def test_tracker_follows_known_motion():
+    frames, boxes = moving_sequence()
+    tr = SubjectTracker()
+    tr.start(frames[0], boxes[0], 0)
+    for k in range(1, len(frames)):
+        st = tr.update(frames[k], k)
+        assert st.ok
+        assert abs(st.box[0] - boxes[k][0]) < 3 and abs(st.box[1] - boxes[k][1]) < 3
+    assert not [e for e in tr.events if e.status in ("lost", "left")]
+
+
+def test_tracker_reports_loss_and_reinitialises():
+    frames, boxes = moving_sequence(n=30, vx=1.0, vy=0.0, hide=set(range(10, 14)))
+    tr = SubjectTracker()
+    tr.start(frames[0], boxes[0], 0)
+    states = [tr.update(frames[k], k) for k in range(1, 30)]
+    lost = [s.frame for s in states if s.status == "lost"]
+    assert lost and min(lost) in (10, 11)  # the occlusion is reported, not tracked through silently
+    reinit = [s.frame for s in states if s.status == "reinit"]
+    assert reinit and 14 <= min(reinit) <= 16
+    final = states[-1]
+    assert final.ok and abs(final.box[0] - boxes[29][0]) < 3
+
+
+def test_subject_leaving_the_frame_is_reported_as_left():
+    frames, boxes = moving_sequence(n=50, vx=4.0, vy=0.0)  # exits at the right edge
+    tr = SubjectTracker()
+    tr.start(frames[0], boxes[0], 0)
+    states = [tr.update(frames[k], k) for k in range(1, 50)]
+    assert any(s.status == "left" for s in states)
+    first_left = next(s.frame for s in states if s.status == "left")
+    assert boxes[first_left][0] + boxes[first_left][2] > 150  # at the edge, not earlier
+
+
+# ------------------------------------------------------------------------------------------ reading
+
+def test_reading_is_foreground_biased_not_the_mean():
+    d = np.full((60, 60), 5.0, np.float32)
+    d[20:45, 22:40] = 1.0  # the subject covers ~30% of the box
+    r = read_focus(d, (10, 10, 40, 40))
+    assert r.value == pytest.approx(1.0, abs=0.01) and r.support > 0.3
+
+
+def test_reading_skips_a_sliver_in_front_and_follows_a_prior():
+    d = np.full((60, 60), 5.0, np.float32)
+    d[15:50, 20:42] = 2.0  # subject
+    d[10:50, 28:30] = -6.0  # a thin branch in front
+    assert read_focus(d, (10, 10, 40, 40)).value == pytest.approx(2.0, abs=0.01)
+    assert read_focus(d, (10, 10, 40, 40), prior=4.8).value == pytest.approx(5.0, abs=0.01)
+
+
+# ------------------------------------------------------------------------------------------ combination
+
+def blob(shape, box, value=1.0):
+    m = np.zeros(shape, np.float32)
+    x, y, w, h = box
+    m[y:y + h, x:x + w] = value
+    return m
+
+
+def test_intersection_and_kmeans_majority_pick_the_larger_region():
+    shape = (90, 160)
+    a = blob(shape, (10, 10, 40, 40)) + blob(shape, (100, 50, 14, 14))
+    b = np.ones(shape, np.float32)
+    mask, used = intersect({"action": DetectorOutput(a), "saliency": DetectorOutput(b)})
+    assert used == ("action", "saliency")
+    r = majority_region(mask, min_area=0.001)
+    assert 10 <= r.x <= 50 and 10 <= r.y <= 50  # inside the big blob
+    assert r.box == (10.0, 10.0, 40.0, 40.0)
+
+
+def test_empty_detector_empties_the_intersection_and_tiny_regions_are_ignored():
+    shape = (90, 160)
+    mask, _ = intersect({"speech": DetectorOutput(None), "face": DetectorOutput(blob(shape, (5, 5, 20, 20)))})
+    assert mask is None
+    assert majority_region(blob(shape, (0, 0, 3, 3)) > 0, min_area=0.01) is None
+
+
+def test_unavailable_detector_is_dropped_and_primary_is_not_vetoed():
+    shape = (90, 160)
+    face = DetectorOutput(blob(shape, (5, 5, 20, 20)))
+    mask, used = intersect({"speech": DetectorOutput(None, available=False), "face": face})
+    assert used == ("face",) and mask.sum() == 400
+    act = DetectorOutput(blob(shape, (100, 20, 30, 40)))
+    sal = DetectorOutput(blob(shape, (0, 0, 50, 90)))
+    mask, used = intersect({"action": act, "saliency": sal}, primary="action", min_area=0.01)
+    assert used == ("action",) and mask.sum() == 1200
+
+
+def _steps(levels, causal):
+    det = StepDetector(min_step=0.5, r=3, min_gap=5, causal=causal)
+    found = []
+    for i, v in enumerate(levels):
+        for st in det.push(v):
+            found.append((st.frame, i))  # (step frame, frame at which it became certain)
+    found += [(st.frame, len(levels)) for st in det.finish()]
+    return found
+
+
+def test_step_detector_finds_the_discontinuity_frame():
+    rng = np.random.default_rng(0)
+    levels = np.r_[np.full(20, 1.0), np.full(20, 3.0)] + rng.normal(0, 0.05, 40)
+    levels[5] = np.nan  # empty intersection: held
+    ((frame, known),) = _steps(levels, causal=False)
+    assert frame == 20 and 20 < known <= 20 + StepDetector(causal=False).delay
+    ((frame_c, known_c),) = _steps(levels, causal=True)
+    assert frame_c == 20 and 20 <= known_c <= 20 + StepDetector(causal=True).delay
+    assert known_c < known
+
+
+def test_a_one_frame_blip_then_nothing_is_no_target():
+    levels = np.r_[np.full(20, 1.0), [4.0], np.full(20, np.nan)]
+    assert _steps(levels, causal=False) == [] and _steps(levels, causal=True) == []
+
+
+def test_gradual_change_below_min_step_is_no_target():
+    levels = np.linspace(1.0, 1.4, 40)
+    assert _steps(levels, causal=False) == []
+
+
+def test_synthetic_entering_square_is_consistent():
+    frames, maps, boxes = entering_square()
+    assert len(frames) == 40 and maps[25][36, 120] == 0.0 and maps[0][36, 100] == 3.0
