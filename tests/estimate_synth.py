@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from rvr_addon.color import linear_to_srgb, srgb_to_linear, to_uint8
+from rvr_addon.io.exr import write_exr
 from rvr_addon.render.torch_render import render_torch
 
 MEMBERS = {  # name: (f-number, focus disparity, aperture scale)
@@ -55,10 +56,11 @@ def write_png(path: Path, linear: np.ndarray) -> None:
 
 
 def make_clip(folder: Path, seed: int = 0, frames: int = 2, width: int = 32, height: int = 32,
-              complete: bool = True) -> dict:
+              complete: bool = True, gt: bool = True) -> dict:
     """Write a clip folder; returns {frame: (radiance, disparity)} (frames are 1-based).
 
     complete=False leaves the last frame without its done marker (an interrupted harness run).
+    gt=False leaves out the ground-truth EXRs (gt/disparity, gt/hdr).
     """
     config = {"seed": seed, "frames": frames, "width": width, "height": height, "fps": 24, "train_every": 1}
     manifest = {"format": "rvr-laaf-harness/1", "config": config, "config_hash": f"synthetic-{seed}",
@@ -79,14 +81,18 @@ def make_clip(folder: Path, seed: int = 0, frames: int = 2, width: int = 32, hei
                              "alpha": a, "beta": -a * f}
         for rel, lin in files.items():
             write_png(folder / rel, lin)
+        if gt:  # ground truth (DATASET.md): disparity channel D, linear HDR radiance R, G, B
+            write_exr(folder / "gt" / "disparity" / f"{stem}.exr", {"D": disparity})
+            write_exr(folder / "gt" / "hdr" / f"{stem}.exr", {c: radiance[..., i] for i, c in enumerate("RGB")})
         sidecar = {"frame": frame, "index": frame - 1, "input": f"input/{stem}.png", "members": members,
                    "aperture_pair": {"small": "small", "large": "large"},
                    "aperture_triplet": ["large", "mid", "small"], "focal_triplet": ["input", "large", "focusB"]}
         (folder / "train").mkdir(exist_ok=True)
         (folder / "train" / f"{stem}.json").write_text(json.dumps(sidecar))
         if complete or frame < frames:
+            listed = list(files) + ([f"gt/disparity/{stem}.exr", f"gt/hdr/{stem}.exr"] if gt else [])
             marker = {"config_hash": manifest["config_hash"],
-                      "files": {rel: (folder / rel).stat().st_size for rel in files}}
+                      "files": {rel: (folder / rel).stat().st_size for rel in listed}}
             (folder / "done").mkdir(exist_ok=True)
             (folder / "done" / f"{stem}.json").write_text(json.dumps(marker))
     return truth

@@ -11,4 +11,5 @@ modules that need it):
 * :mod:`.train` - the resumable training job behind ``rvr train``;
 * :mod:`.cache` - the per-clip cache (one EXR per frame + meta.json);
 * :mod:`.infer` - per-frame inference, external depth, the job behind ``rvr estimate``.
+* :mod:`.evaluate` - scores weights against ground truth (``rvr eval-estimator``).
 """

@@ -5,7 +5,9 @@ CACHE/
   meta.json            format, engine version, model hash, source file hash, resolution, fps,
                        frame range, depth source, and the frames written under this key
   frame_00001.exr      channels D (px at the native width, DESIGN units), E.R, E.G, E.B (eq. 3);
-  frame_00002.exr      one file per frame, numbered from 1 (frame = 0-based clip index + 1)
+  frame_00002.exr      one file per frame, numbered from 1 (frame = 0-based clip index + 1);
+                       after ``rvr stabilize`` also S.D, S.E.R, S.E.G, S.E.B (the temporally
+                       stabilized D and E) and S.C (its confidence, 0..1), added to the same file
 ```
 
 A frame is trusted only if ``meta.json`` carries the same *key* (format, engine version,
@@ -18,7 +20,16 @@ the old frames are deleted before the new ``meta.json`` is written. All writes a
 interrupted run loses at most those frames.
 
 The cache folder can be given to ``rvr render --depth CACHE --hdr CACHE`` directly (it reads
-channel D, then E.R/E.G/E.B) when it covers the clip from its first frame.
+channel D, then E.R/E.G/E.B) when it covers the clip from its first frame; it reads the
+stabilized channels instead when :func:`stabilized_complete` says every frame has them.
+
+Stabilized channels (``rvr stabilize``, :mod:`rvr_addon.temporal.job`) are recorded in
+``meta.json`` under ``"stabilized"``: the filter settings and, per frame, the byte size of
+the file holding them. The raw D and E are copied into every rewritten file, never dropped.
+A frame file is rewritten in two steps (the new file is complete under a temp name, its size
+is recorded as ``pending`` in meta.json, then it is renamed into place), so an interrupted run
+leaves every raw frame valid. Rewriting a raw frame (``rvr estimate``) drops the record, since
+stabilized frames depend on their neighbours; a run with other settings starts a new record.
 
 Source hash (:func:`source_fingerprint`): SHA-256 over the file's size, its modification time
 (ns) and its first and last MiB; for an image sequence over every file's name, size and mtime
@@ -48,6 +59,7 @@ CACHE_FORMAT = "rvr-laaf-cache/1"
 FRAME_NAME = "frame_{:05d}.exr"
 _FRAME_RE = re.compile(r"frame_(\d{5,})\.exr$")
 CHANNELS = ("D", "E.R", "E.G", "E.B")
+STABILIZED_CHANNELS = ("S.D", "S.E.R", "S.E.G", "S.E.B", "S.C")
 MIB = 1 << 20
 KEY_FIELDS = ("format", "engine_version", "model_hash", "source_hash", "resolution", "depth")
 
@@ -103,6 +115,7 @@ class ClipCache:
         self.flush_every = flush_every
         self.frames: dict[str, int] = {}
         self.stale_reason: str | None = None
+        self.stabilized: dict | None = None
         self._dirty = 0
         self._open()
 
@@ -133,6 +146,8 @@ class ClipCache:
             else:
                 frames = old.get("frames") or {}
                 self.frames = {str(k): int(v) for k, v in frames.items()} if isinstance(frames, dict) else {}
+                self.stabilized = _stabilized_record(old.get("stabilized"))
+                self._adopt_pending()
         if self.stale_reason:
             removed = self._remove_frames()
             log.warning("cache '%s' is stale (%s): %d old frames removed, recomputing", self.folder,
@@ -153,7 +168,8 @@ class ClipCache:
         """True if frame ``index`` (0-based) is recorded, intact and readable at size (w, h)."""
         path = frame_path(self.folder, index)
         recorded = self.frames.get(str(index + 1))
-        if recorded is None or not path.is_file() or path.stat().st_size != recorded:
+        pending = (self.stabilized or {}).get("pending", {}).get(str(index + 1))
+        if recorded is None or not path.is_file() or path.stat().st_size not in (recorded, pending):
             return False
         try:
             channels = read_exr(path)
@@ -176,6 +192,11 @@ class ClipCache:
         write_exr(path, {"D": disparity, "E.R": exponent[..., 0], "E.G": exponent[..., 1],
                          "E.B": exponent[..., 2]})
         self.frames[str(index + 1)] = path.stat().st_size
+        if self.stabilized is not None:
+            log.info("cache '%s': frame %d re-estimated; the stabilized channels are outdated (run rvr stabilize "
+                     "again)", self.folder, index)
+            self._adopt_pending()
+            self.stabilized = None
         self._dirty += 1
         if self._dirty >= self.flush_every:
             self.flush()
@@ -188,6 +209,8 @@ class ClipCache:
                 "frame_range": [numbers[0] - 1, numbers[-1]] if numbers else None,
                 "frame_count": len(numbers), "updated": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                 "frames": {str(k): self.frames[str(k)] for k in numbers}}
+        if self.stabilized is not None:
+            meta["stabilized"] = self.stabilized
         path = self.folder / "meta.json"
         tmp = temp_sibling(path, ".json")
         try:
@@ -197,3 +220,122 @@ class ClipCache:
             tmp.unlink(missing_ok=True)
             raise OutputError(f"cannot write '{path}': {ex}. Check free disk space and permissions.") from ex
         self._dirty = 0
+
+    # -- stabilized channels (rvr stabilize) ----------------------------------------------
+    @classmethod
+    def open_existing(cls, folder: str | Path) -> "ClipCache":
+        """Open a cache written by ``rvr estimate`` under the key recorded in its meta.json.
+
+        Raises InputError naming the folder when it is not a cache (no or unreadable
+        meta.json, another format) or holds no frame.
+        """
+        folder = Path(folder)
+        meta_path = folder / "meta.json"
+        if not folder.is_dir() or not meta_path.is_file():
+            raise InputError(f"'{folder}' is not an estimation cache (no meta.json); create it with "
+                             f"`rvr estimate INPUT -o {folder} ...` first")
+        try:
+            meta = json.loads(meta_path.read_text())
+            if not isinstance(meta, dict):
+                raise ValueError("not a JSON object")
+        except (OSError, ValueError) as ex:
+            raise InputError(f"'{meta_path}' is unreadable ({ex}); re-run `rvr estimate ... -o {folder}` to "
+                             "rebuild the cache") from ex
+        if meta.get("format") != CACHE_FORMAT or any(k not in meta for k in KEY_FIELDS):
+            raise InputError(f"'{meta_path}' is not a cache of format {CACHE_FORMAT} (format {meta.get('format')!r}); "
+                             f"re-run `rvr estimate ... -o {folder}` with this version")
+        if not meta.get("frames"):
+            raise InputError(f"the cache '{folder}' holds no frame; run `rvr estimate ... -o {folder}` first")
+        generated = {"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames", "stabilized"}
+        info = {k: v for k, v in meta.items() if k not in KEY_FIELDS and k not in generated}
+        return cls(folder, {k: meta[k] for k in KEY_FIELDS}, info)
+
+    def _adopt_pending(self) -> None:
+        """A file renamed into place by an interrupted :meth:`write_stabilized` (its size is
+        recorded as pending) holds intact raw channels: record its size as the frame's."""
+        if self.stabilized is None:
+            return
+        for number, size in list(self.stabilized["pending"].items()):
+            path = self.folder / FRAME_NAME.format(int(number))
+            if number in self.frames and path.is_file() and path.stat().st_size == size:
+                self.frames[number] = size
+            del self.stabilized["pending"][number]
+
+    def frame_indices(self) -> list[int]:
+        """0-based clip indices of the recorded frames, ascending."""
+        return sorted(int(k) - 1 for k in self.frames)
+
+    def begin_stabilized(self, settings: dict) -> None:
+        """Start or continue the stabilized record for ``settings`` (JSON-serialisable);
+        a record made with other settings is replaced (its frames are recomputed)."""
+        settings = json.loads(json.dumps(settings))
+        self._adopt_pending()
+        if self.stabilized is None or self.stabilized.get("settings") != settings:
+            if self.stabilized is not None:
+                log.info("cache '%s': stabilized channels were made with other settings; recomputing", self.folder)
+            self.stabilized = {"settings": settings, "frames": {}, "pending": {}}
+            self.flush()
+
+    def has_stabilized(self, index: int) -> bool:
+        """True if frame ``index`` holds stabilized channels under the current record."""
+        if self.stabilized is None:
+            return False
+        size = self.stabilized["frames"].get(str(index + 1))
+        return size is not None and self.frames.get(str(index + 1)) == size and \
+            frame_path(self.folder, index).is_file() and frame_path(self.folder, index).stat().st_size == size
+
+    def write_stabilized(self, index: int, disparity: np.ndarray, exponent: np.ndarray,
+                         confidence: np.ndarray) -> None:
+        """Add S.D, S.E.R/G/B, S.C to frame ``index``'s EXR, keeping its raw channels.
+
+        disparity (H, W) px, exponent (H, W, 3), confidence (H, W) in [0, 1]. Atomic, in two
+        steps (see the module docstring); call :meth:`begin_stabilized` first.
+        """
+        if self.stabilized is None:
+            raise RuntimeError("write_stabilized before begin_stabilized")
+        path = frame_path(self.folder, index)
+        channels = dict(read_exr(path))  # every channel already there is kept (raw D, E and any other)
+        channels.update({"S.D": disparity, "S.E.R": exponent[..., 0], "S.E.G": exponent[..., 1],
+                         "S.E.B": exponent[..., 2], "S.C": confidence})
+        tmp = temp_sibling(path, ".exr")
+        try:
+            write_exr(tmp, channels)
+            size = tmp.stat().st_size
+            self.stabilized["pending"][str(index + 1)] = size
+            self.flush()
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        self.frames[str(index + 1)] = size
+        self.stabilized["frames"][str(index + 1)] = size
+        del self.stabilized["pending"][str(index + 1)]
+        self._dirty += 1
+        if self._dirty >= self.flush_every:
+            self.flush()
+
+    def read_stabilized(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(S.D (H, W), S.E (H, W, 3), S.C (H, W)) float32 of a stabilized frame."""
+        ch = read_exr(frame_path(self.folder, index))
+        return ch["S.D"], np.dstack([ch["S.E.R"], ch["S.E.G"], ch["S.E.B"]]), ch["S.C"]
+
+
+def _stabilized_record(value) -> dict | None:
+    """The "stabilized" record of a meta.json, normalised (None if absent or malformed)."""
+    if not isinstance(value, dict) or not isinstance(value.get("frames"), dict):
+        return None
+    try:
+        frames = {str(k): int(v) for k, v in value["frames"].items()}
+        pending = {str(k): int(v) for k, v in (value.get("pending") or {}).items()}
+    except (TypeError, ValueError):
+        return None
+    return {"settings": value.get("settings"), "frames": frames, "pending": pending}
+
+
+def stabilized_complete(meta: dict) -> bool:
+    """True if a cache's meta.json records stabilized channels for every one of its frames
+    (same byte sizes as the frame records, nothing pending): then renderers read S.D/S.E."""
+    frames = meta.get("frames")
+    rec = _stabilized_record(meta.get("stabilized"))
+    if not isinstance(frames, dict) or not frames or rec is None or rec["pending"]:
+        return False
+    return all(rec["frames"].get(str(k)) == int(v) for k, v in frames.items())

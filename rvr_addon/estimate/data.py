@@ -18,6 +18,14 @@ Each draw picks one of the frame's sample kinds with equal probability:
   same focus, disparity *scaled*;
 * ``focal`` triplet: input -> ``large`` + ``focusB``, same aperture, disparity *shifted*.
 
+Harness samples also carry the frame's ground truth for the supervised terms (ours, see
+:mod:`.losses`): ``gt/disparity`` (channel D, px at the native width) resampled by exact
+nearest neighbour (never a blend of a foreground and a background depth) and multiplied by the
+width ratio like beta, and ``gt/hdr`` (linear radiance) resampled in linear light exactly like
+the input (area when shrinking), from which the target exponent ``E_gt = max(ln(L_hdr /
+L_lin), 0) / 50`` and the saturated mask (brightest input channel >= 254/255) are computed on
+the resized, cropped, flipped input itself (:func:`exponent_target`). Photos have none.
+
 **(b) A user's aperture-bracketed photos** (a DSLR with Magic Lantern, a phone's "pro" mode):
 a folder of shots, each either flat files ``NAME_small.EXT`` + ``NAME_large.EXT``
 [+ ``NAME_medium.EXT``] [+ ``NAME_focusB.EXT``] [+ ``NAME.json``], or a sub-folder per shot
@@ -65,6 +73,10 @@ PHOTO_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 PHOTO_ROLES = ("small", "large", "medium", "focusB")
 KINDS = ("pair", "aperture", "focal")
 _SIDECAR = re.compile(r"frame_(\d+)\.json$")
+SATURATED = 254.0 / 255.0
+"""An input pixel whose brightest channel reaches this sRGB value is clipped (saturated)."""
+LINEAR_FLOOR = 1e-3
+"""Linear radiance floor in the ratio L_hdr / L_lin of the ground-truth exponent (dark channels)."""
 _FNUMBER_TAG = 0x829D
 _EXIF_IFD = 0x8769
 
@@ -88,6 +100,8 @@ class SampleSource:
 
     native_width: width in px of the input file (beta is in px at this width).
     third: names of the members usable as the third image, by kind (``aperture`` / ``focal``).
+    gt_disparity, gt_hdr: harness ground truth of the input (``gt/disparity`` EXR, channel D in
+        px at the native width; ``gt/hdr`` EXR, linear radiance R, G, B), None for photos.
     """
 
     name: str
@@ -96,6 +110,8 @@ class SampleSource:
     members: dict[str, Member]
     native_width: int
     third: dict[str, tuple[str, ...]]
+    gt_disparity: Path | None = None
+    gt_hdr: Path | None = None
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -110,6 +126,13 @@ class TrainSample:
     frame_width: width in px of the whole resized frame the crop comes from (D_rel -> px).
     alpha, beta: the primary target's factors, beta in px at the working resolution.
     adjusted: (third image, alpha, beta) of a triplet, or None for a pair.
+    gt_disparity: (h, w) float32 ground-truth D in px at the working resolution (``frame_width``),
+        NaN where unknown; None without ground truth (photos).
+    gt_exponent: (h, w, 3) float32 ground-truth E (eq. 3) of the cropped input:
+        ``max(ln(L_hdr / L_lin), 0) / 50`` per channel (``L_lin`` = the linearised input); None
+        without ground truth.
+    saturated: (h, w) bool, the input's brightest channel >= ``SATURATED`` (clipped pixels).
+    native_width: width in px of the source file (to report D errors in DESIGN units).
     """
 
     name: str
@@ -120,6 +143,10 @@ class TrainSample:
     beta: float
     frame_width: float
     adjusted: tuple[np.ndarray, float, float] | None = None
+    gt_disparity: np.ndarray | None = None
+    gt_exponent: np.ndarray | None = None
+    saturated: np.ndarray | None = None
+    native_width: float | None = None
 
 
 @dataclass
@@ -173,6 +200,79 @@ def resize_linear(srgb: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     interp = cv2.INTER_AREA if size[0] < srgb.shape[1] else cv2.INTER_LINEAR
     lin = cv2.resize(srgb_to_linear(srgb), size, interpolation=interp)
     return linear_to_srgb(lin).astype(np.float32)
+
+
+def resize_disparity(disparity: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resample a disparity map to size (width, height) by exact (pixel-centre) nearest neighbour.
+
+    Values are not rescaled (the caller multiplies by the width ratio). Nearest neighbour never
+    averages a foreground and a background depth into a value that is on neither surface.
+    """
+    import cv2
+
+    if (disparity.shape[1], disparity.shape[0]) == tuple(size):
+        return disparity
+    return cv2.resize(disparity, size, interpolation=cv2.INTER_NEAREST_EXACT)
+
+
+def resize_radiance(radiance: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resize linear radiance (H, W, 3) to size (width, height) like :func:`resize_linear` does the
+    input (area when shrinking, bilinear when enlarging), so the two stay consistent."""
+    import cv2
+
+    if (radiance.shape[1], radiance.shape[0]) == tuple(size):
+        return radiance
+    interp = cv2.INTER_AREA if size[0] < radiance.shape[1] else cv2.INTER_LINEAR
+    return cv2.resize(radiance, size, interpolation=interp)
+
+
+def read_gt_disparity(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Channel D of a harness ``gt/disparity`` EXR, (H, W) float32, non-finite values as NaN.
+
+    size: the expected (width, height); InputError naming the file when it differs.
+    """
+    from ..io.exr import read_exr
+
+    ch = read_exr(path)
+    if "D" not in ch:
+        raise InputError(f"ground-truth disparity {path} has no channel D (it has {', '.join(sorted(ch))})")
+    d = np.asarray(ch["D"], dtype=np.float32)
+    if size is not None and (d.shape[1], d.shape[0]) != tuple(size):
+        raise InputError(f"ground-truth disparity {path} is {d.shape[1]}x{d.shape[0]}, the input {size[0]}x{size[1]}")
+    return np.where(np.isfinite(d), d, np.nan).astype(np.float32)
+
+
+def read_gt_radiance(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+    """Channels R, G, B of a harness ``gt/hdr`` EXR, (H, W, 3) float32 linear radiance.
+
+    Non-finite or negative values become 0. size as in :func:`read_gt_disparity`.
+    """
+    from ..io.exr import read_exr
+
+    ch = read_exr(path)
+    if not all(c in ch for c in "RGB"):
+        raise InputError(f"ground-truth HDR {path} lacks channels R, G, B (it has {', '.join(sorted(ch))})")
+    rad = np.dstack([ch["R"], ch["G"], ch["B"]]).astype(np.float32)
+    if size is not None and (rad.shape[1], rad.shape[0]) != tuple(size):
+        raise InputError(f"ground-truth HDR {path} is {rad.shape[1]}x{rad.shape[0]}, the input {size[0]}x{size[1]}")
+    return np.where(np.isfinite(rad), np.maximum(rad, 0.0), 0.0).astype(np.float32)
+
+
+def exponent_target(srgb: np.ndarray, radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth HDR exponent of an input and its true radiance (same size).
+
+    srgb: (H, W, 3) the input, sRGB in [0, 1]; radiance: (H, W, 3) linear HDR radiance.
+    Returns (E (H, W, 3) float32 = ``max(ln(L_hdr / max(L_lin, 1e-3)), 0) / 50`` per channel,
+    saturated (H, W) bool = brightest input channel >= 254/255). E is returned everywhere; the
+    loss uses it on saturated pixels and only its near-zero values elsewhere (a resized pixel
+    that mixes a clipped light with its surround has E > 0 without reaching 254).
+    """
+    from ..render.model import K_HDR
+
+    lin = np.maximum(srgb_to_linear(srgb.astype(np.float32)), LINEAR_FLOOR)
+    e = np.log(np.maximum(radiance, LINEAR_FLOOR) / lin)
+    e = np.maximum(e, 0.0) / K_HDR
+    return e.astype(np.float32), srgb.max(axis=-1) >= SATURATED
 
 
 # ------------------------------------------------------------------------------ (a) harness
@@ -298,8 +398,11 @@ def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None) ->
     aperture = tuple(n for n in (rec.get("aperture_triplet") or []) if n in members and n != "large")
     focal = tuple(n for n in (rec.get("focal_triplet") or []) if n in members and n != "large")
     width = width or _image_width(inp)
+    gt_d = clip / "gt" / "disparity" / f"frame_{frame:05d}.exr"
+    gt_h = clip / "gt" / "hdr" / f"frame_{frame:05d}.exr"
     return SampleSource(f"{clip.name}/frame_{frame:05d}", "harness", inp, members, width,
-                        {"aperture": aperture, "focal": focal})
+                        {"aperture": aperture, "focal": focal},
+                        gt_d if gt_d.is_file() else None, gt_h if gt_h.is_file() else None)
 
 
 def _image_width(path: Path) -> int:
@@ -551,11 +654,19 @@ class Augment:
     crop: side of the square crop in px (the whole frame when it is smaller).
     scale_range: resize factors drawn uniformly (clamped so the crop still fits).
     flip: random horizontal flip (disparity is unchanged by a mirror).
+    whole_frame: probability that a sample is instead the *whole* frame, shrunk to between half
+        and all of a crop's pixel count (``crop**2``; never enlarged). The paper trained on whole
+        images at random resolutions; the network's global feature and its receptive field see
+        the whole frame at inference, and a model trained on crops alone behaved differently
+        on whole frames (on the 160x90 test clips its E on clipped pixels was 2.5x larger on
+        the whole frame than on 64-px crops of it). Whole frames at ~crop**2 pixels cost
+        the same as a crop.
     """
 
     crop: int = 128
     scale_range: tuple[float, float] = (0.5, 1.0)
     flip: bool = True
+    whole_frame: float = 0.0
 
 
 class TrainingSet:
@@ -611,20 +722,29 @@ class TrainingSet:
                                  f"{src.input} is {image.shape[1]}x{image.shape[0]}")
         h, w = image.shape[:2]
         aug = self.augment
-        lo, hi = aug.scale_range
-        lo = max(lo, min(aug.crop / min(h, w), 1.0))
-        hi = max(hi, lo)
-        s = float(rng.uniform(lo, hi)) if hi > lo else hi
-        size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+        if aug.whole_frame > 0 and float(rng.random()) < aug.whole_frame:
+            s = min(1.0, math.sqrt(float(rng.uniform(0.5, 1.0)) * aug.crop**2 / (w * h)))
+            size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+            ch, cw, y0, x0 = size[1], size[0], 0, 0
+        else:
+            lo, hi = aug.scale_range
+            lo = max(lo, min(aug.crop / min(h, w), 1.0))
+            hi = max(hi, lo)
+            s = float(rng.uniform(lo, hi)) if hi > lo else hi
+            size = (max(int(round(w * s)), 1), max(int(round(h * s)), 1))
+            ch, cw = min(aug.crop, size[1]), min(aug.crop, size[0])
+            y0 = int(rng.integers(size[1] - ch + 1))
+            x0 = int(rng.integers(size[0] - cw + 1))
         frame_width = float(size[0])
         px_scale = frame_width / src.native_width
-        ch, cw = min(aug.crop, size[1]), min(aug.crop, size[0])
-        y0 = int(rng.integers(size[1] - ch + 1))
-        x0 = int(rng.integers(size[0] - cw + 1))
         flip = aug.flip and bool(rng.integers(2))
 
         def prep(img: np.ndarray) -> np.ndarray:
             out = resize_linear(img, size)[y0:y0 + ch, x0:x0 + cw]
+            return np.ascontiguousarray(out[:, ::-1] if flip else out, dtype=np.float32)
+
+        def crop_flip(arr: np.ndarray) -> np.ndarray:
+            out = arr[y0:y0 + ch, x0:x0 + cw]
             return np.ascontiguousarray(out[:, ::-1] if flip else out, dtype=np.float32)
 
         large = src.members["large"]
@@ -632,5 +752,12 @@ class TrainingSet:
         if kind != "pair":
             third = src.members[names[1]]
             adjusted = (prep(members[1]), third.alpha, third.beta * px_scale)
-        return TrainSample(src.name, kind, prep(image), prep(members[0]), large.alpha, large.beta * px_scale,
-                           frame_width, adjusted)
+        inp = prep(image)
+        gt_d = gt_e = sat = None
+        if src.gt_disparity is not None:
+            gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h)), size) * px_scale)
+        if src.gt_hdr is not None:
+            hdr = crop_flip(resize_radiance(read_gt_radiance(src.gt_hdr, (w, h)), size))
+            gt_e, sat = exponent_target(inp, hdr)
+        return TrainSample(src.name, kind, inp, prep(members[0]), large.alpha, large.beta * px_scale,
+                           frame_width, adjusted, gt_d, gt_e, sat, float(src.native_width))

@@ -113,8 +113,9 @@ class EstimatorConfig:
     def __post_init__(self) -> None:
         if len(self.widths) < 2:
             raise ValueError(f"widths needs at least two levels, got {self.widths}")
-        if not 0 <= self.grid_level < len(self.widths):
-            raise ValueError(f"grid_level {self.grid_level} is not a level of widths {self.widths}")
+        if not 0 <= self.grid_level < len(self.widths) - 1:  # the grid comes from a decoder level
+            raise ValueError(f"grid_level {self.grid_level} is not a decoder level of widths {self.widths} "
+                             f"(0 .. {len(self.widths) - 2})")
         if self.grid_bins < 2:
             raise ValueError(f"grid_bins must be >= 2, got {self.grid_bins}")
         if not 0.0 <= self.gate_lo < self.gate_hi <= 1.0:

@@ -219,3 +219,53 @@ def test_photo_folder_errors(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="no bracketed photos"):
         find_photo_shots(tmp_path / "empty", SkipReport())
+
+
+# ------------------------------------------------------------------------------ ground truth (supervised terms)
+
+
+def test_samples_carry_ground_truth_resized_like_the_images(dataset):
+    from rvr_addon.estimate.data import SATURATED
+
+    root, truth = dataset
+    sources = [s for s in harness_sources(root, SkipReport()) if s.name.startswith("clipA")]
+    assert all(s.gt_disparity is not None and s.gt_hdr is not None for s in sources)
+    # at scale 1 without flip the crop of D is the truth itself and E reproduces the radiance
+    data = TrainingSet(sources, Augment(crop=48, scale_range=(1.0, 1.0), flip=False))
+    s = data.make(sources[0], np.random.default_rng(0))
+    radiance, disparity = truth[int(sources[0].name[-1])]
+    np.testing.assert_array_equal(s.gt_disparity, disparity)
+    sat = s.saturated
+    assert sat.any() and (~sat).any()
+    np.testing.assert_array_equal(sat, s.image.max(axis=-1) >= SATURATED)
+    rebuilt = srgb_to_linear(s.image) * np.exp(50.0 * s.gt_exponent)
+    np.testing.assert_allclose(rebuilt[sat], np.maximum(radiance[sat], srgb_to_linear(s.image)[sat]), rtol=1e-4)
+    assert float(s.gt_exponent[~sat].max()) < 0.01  # nothing clipped: gain ~1 (8-bit rounding)
+    # resized + flipped: D is scaled by the width ratio, nearest-neighbour (only values of the truth)
+    data = TrainingSet(sources, Augment(crop=20, scale_range=(0.5, 0.7), flip=True))
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        s = data.draw(rng)
+        scale = s.frame_width / 48
+        assert s.gt_disparity.shape == s.image.shape[:2] == s.saturated.shape
+        assert s.gt_exponent.shape == s.image.shape and s.native_width == 48
+        values = {round(float(v), 4) for v in np.unique(np.concatenate([d.ravel() for d, _ in
+                                                                          (truth[1][::-1], truth[2][::-1])]))}
+        got = {round(float(v) / scale, 4) for v in np.unique(s.gt_disparity)}
+        assert got <= values
+
+
+def test_whole_frame_samples_and_photos_without_ground_truth(dataset, tmp_path):
+    root, _ = dataset
+    sources = [s for s in harness_sources(root, SkipReport()) if s.name.startswith("clipA")]
+    data = TrainingSet(sources, Augment(crop=24, whole_frame=1.0))
+    s = data.draw(np.random.default_rng(0))
+    h, w = s.image.shape[:2]
+    assert w == round(s.frame_width) and 0.5 * 24**2 * 0.8 <= h * w <= 24**2 * 1.1  # the whole frame, ~crop^2 px
+    assert w / h == pytest.approx(48 / 40, rel=0.1)
+    # a clip without ground truth (like photos) gives samples without it
+    make_clip(tmp_path / "nogt", seed=9, frames=1, gt=False)
+    (src,) = harness_sources(tmp_path / "nogt", SkipReport())
+    assert src.gt_disparity is None and src.gt_hdr is None
+    s = TrainingSet([src], Augment(crop=16)).draw(np.random.default_rng(0))
+    assert s.gt_disparity is None and s.gt_exponent is None and s.saturated is None

@@ -202,3 +202,34 @@ def test_tiny_frames_through_the_job(tmp_path, weights):
     assert job.computed == 1
     ch = read_exr(frame_path(tmp_path / "cache", 0))
     assert ch["D"].shape == (2, 3) and np.isfinite(ch["D"]).all()
+
+
+def test_more_bad_input_16bit_grey_grey_alpha_and_a_corrupt_frame(tmp_path, weights, capsys):
+    from PIL import Image
+
+    folder = tmp_path / "odd"
+    folder.mkdir()
+    rng = np.random.default_rng(2)
+    cv2.imwrite(str(folder / "a1.png"), (rng.random((30, 40)) * 65535).astype(np.uint16))  # 16-bit grey
+    Image.fromarray(np.dstack([(rng.random((30, 40)) * 255).astype(np.uint8)] * 2), "LA").save(folder / "a2.png")
+    cache = tmp_path / "cache"
+    assert run(folder, cache, weights=weights[0]).computed == 2
+    (folder / "a3.png").write_bytes((folder / "a1.png").read_bytes()[:200])  # truncated
+    assert main(["estimate", str(folder), "-o", str(cache), "--weights", str(weights[0]), "-q"]) == 2
+    assert "a3.png" in capsys.readouterr().err
+    assert frame_path(cache, 1).is_file()  # the good frames stay cached
+
+
+def test_cache_from_another_engine_version_is_recomputed_and_corrupt_weights_fail_clearly(clip, tmp_path, weights,
+                                                                                           capsys):
+    cache = tmp_path / "cache"
+    run(clip, cache, weights=weights[0])
+    meta = json.loads((cache / "meta.json").read_text())
+    meta["engine_version"] = "0.0.0-older"
+    (cache / "meta.json").write_text(json.dumps(meta))
+    assert run(clip, cache, weights=weights[0]).computed == 3
+    bad = tmp_path / "broken_estimator.pt"
+    bad.write_bytes(open(weights[0], "rb").read()[:1000])  # a truncated download
+    assert main(["estimate", str(clip), "-o", str(tmp_path / "c2"), "--weights", str(bad), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "broken_estimator.pt" in err and "corrupt" in err

@@ -165,3 +165,75 @@ def test_vgg19_corrupt_missing_and_wrong_files(tmp_path):
     torch.save({"features.0.weight": torch.zeros(64, 3, 3, 3)}, other)
     with pytest.raises(InputError, match="vgg16.pth"):
         load_vgg19(other)
+
+
+# ------------------------------------------------------------------------------ supervised terms (ours)
+
+
+def test_fit_scale_shift_recovers_an_affine_map_and_ignores_masked_pixels():
+    from rvr_addon.estimate.losses import fit_scale_shift
+
+    pred = t([[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]])
+    gt = 2.0 * pred - 1.0
+    gt[0, 0, 1, 2] = 100.0  # an outlier the mask leaves out
+    mask = torch.ones_like(gt, dtype=torch.bool)
+    mask[0, 0, 1, 2] = False
+    s, tt = fit_scale_shift(pred, gt, mask)
+    assert float(s) == pytest.approx(2.0) and float(tt) == pytest.approx(-1.0)
+    flat_s, flat_t = fit_scale_shift(torch.ones_like(pred), gt, mask)  # a flat prediction: s = 0, t = mean
+    assert float(flat_s) == 0.0 and float(flat_t) == pytest.approx(float(gt[mask].mean()))
+
+
+def test_disparity_terms_hand_values():
+    from rvr_addon.estimate.losses import disparity_gradient_loss, disparity_l1
+
+    gt = t([[1.0, 2.0], [3.0, float("nan")]])  # NaN = unknown, left out
+    pred = t([[1.5, 2.0], [2.0, 50.0]])
+    assert float(disparity_l1(pred, gt)) == pytest.approx((0.5 + 0.0 + 1.0) / 3)
+    # an affine copy is perfect for the invariant variant only
+    aff = 0.5 * gt.nan_to_num(7.0) + 3.0
+    assert float(disparity_l1(aff, gt, invariant=True)) == pytest.approx(0.0, abs=1e-9)
+    assert float(disparity_l1(aff, gt)) > 0.5
+    # a constant offset has no gradient error; one step in x of residual 1 at scale 1
+    assert float(disparity_gradient_loss(gt.nan_to_num(0.0) + 4.0, gt)) == pytest.approx(0.0)
+    g2 = t([[0.0, 0.0], [0.0, 0.0]])
+    p2 = t([[0.0, 1.0], [0.0, 1.0]])
+    # scale 1: dx |1|, |1| -> mean 1; dy 0. Coarser scales are 1 px wide/high: nothing.
+    assert float(disparity_gradient_loss(p2, g2)) == pytest.approx(1.0)
+
+
+def test_exponent_terms_hand_values():
+    from rvr_addon.estimate.losses import exponent_losses
+
+    target = torch.zeros(1, 3, 1, 3, dtype=torch.float64)
+    target[..., 0, 0] = 0.06  # a clipped light: gain e^3
+    target[..., 0, 2] = 0.04  # an unsaturated pixel mixing a light in: left out of both terms
+    sat = torch.tensor([[[[True, False, False]]]])
+    pred = torch.zeros_like(target)
+    pred[..., 0, 0] = 0.05
+    pred[..., 0, 1] = 0.002
+    pred[..., 0, 2] = 0.5
+    l_e, l_e0 = exponent_losses(pred, target, sat, e_max=0.138)
+    assert float(l_e) == pytest.approx(50 * 0.01)
+    assert float(l_e0) == pytest.approx(50 * 0.002)
+    # the target is clamped to the network's range
+    l_e, _ = exponent_losses(pred, target * 10, sat, e_max=0.1)
+    assert float(l_e) == pytest.approx(50 * 0.05)
+    # no saturated pixel: the term is 0, not NaN
+    l_e, _ = exponent_losses(pred, target, torch.zeros_like(sat), e_max=0.138)
+    assert float(l_e) == 0.0
+
+
+def test_supervised_loss_parts_and_missing_ground_truth():
+    from rvr_addon.estimate.losses import supervised_loss
+
+    d = torch.zeros(1, 1, 4, 4, requires_grad=True)
+    e = torch.zeros(1, 3, 4, 4, requires_grad=True)
+    gt_d = torch.ones(1, 1, 4, 4)
+    w = LossWeights(sup_disparity=2.0, sup_disparity_grad=0.0)
+    res = supervised_loss(d, gt_d, e, None, None, 0.138, w)
+    assert set(res.parts) == {"sup", "sup_d", "sup_dgrad"} and res.parts["sup"] == pytest.approx(2.0)
+    res.total.backward()
+    assert d.grad is not None and float(d.grad.abs().sum()) > 0
+    none = supervised_loss(d, None, e, None, None, 0.138, w)
+    assert none.parts == {"sup": 0.0} and float(none.total) == 0.0

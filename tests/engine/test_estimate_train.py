@@ -137,3 +137,58 @@ def test_cli_train_and_refusal_to_overwrite(tmp_path, tiny_dataset, capsys):
     assert "--resume" in capsys.readouterr().err
     assert main(args + ["--iterations", "6", "--resume"]) == 0
     assert json.loads((run / "estimator.json").read_text())["iterations"] == 6
+
+
+def test_supervised_terms_are_logged_and_weight_zero_is_the_papers_loss(tmp_path, tiny_dataset):
+    sup = Trainer(settings(tmp_path / "sup", tiny_dataset, iterations=4))
+    sup.run(progress=False)
+    rows = list(csv.DictReader((tmp_path / "sup" / "loss_log.csv").open()))
+    for r in rows:
+        for k in ("sup", "sup_d", "sup_dgrad", "sup_e", "sup_e0", "d_rms_px", "d_corr", "rss_mb"):
+            assert r[k] != "" and np.isfinite(float(r[k])), k
+        assert float(r["total"]) > float(r["sup"])  # L_rend is kept in the total
+    pure = Trainer(settings(tmp_path / "pure", tiny_dataset, iterations=4, weights=LossWeights(supervised=0.0)))
+    sample = pure.data.draw(np.random.default_rng(0))
+    with torch.no_grad():
+        res = sample_loss(pure.model, sample, LossWeights(supervised=0.0))
+    assert "sup" not in res.parts and "d_rms_px" in res.parts  # monitored, not trained on
+    assert res.parts["total"] == pytest.approx(2 * res.parts["rend"] + 10 * res.parts["smooth"]
+                                               if sample.adjusted is None else
+                                               res.parts["rend"] + res.parts["adjust"] + 10 * res.parts["smooth"],
+                                               rel=1e-5)
+    pure.run(progress=False)
+    rows = list(csv.DictReader((tmp_path / "pure" / "loss_log.csv").open()))
+    assert all(r["sup"] == "" and r["d_rms_px"] != "" for r in rows)
+    assert json.loads((tmp_path / "pure" / "run.json").read_text())["loss_weights"]["supervised"] == 0.0
+
+
+def test_supervision_pulls_disparity_toward_the_truth(tmp_path, tiny_dataset):
+    """A few steps with only the disparity term (rendering loss weights ~0) shrink the D error."""
+    w = LossWeights(pix=0.0, ssim=0.0, grad=0.0, smooth=0.0, supervised=1.0, sup_exponent=0.0,
+                    sup_exponent_zero=0.0)
+    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=10, weights=w, lr=2e-3))
+    rng = np.random.default_rng(7)
+    samples = [trainer.data.draw(rng) for _ in range(4)]
+
+    def d_rms() -> float:
+        with torch.no_grad():
+            return float(np.mean([sample_loss(trainer.model, s, w).parts["d_rms_px"] for s in samples]))
+
+    before = d_rms()
+    trainer.run(progress=False)
+    after = d_rms()
+    assert after < 0.7 * before, (before, after)
+
+
+def test_cli_supervised_options(tmp_path, tiny_dataset):
+    from rvr_addon.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(tiny_dataset), "-o", str(run), "--crop", "32", "-q", "--iterations", "2",
+                 "--supervised-weight", "0.25", "--w-exponent", "2", "--disparity-invariant", "--whole-frame", "1",
+                 "--threads", "1"]) == 0
+    rec = json.loads((run / "run.json").read_text())
+    assert rec["loss_weights"]["supervised"] == 0.25 and rec["loss_weights"]["sup_exponent"] == 2.0
+    assert rec["loss_weights"]["disparity_invariant"] is True and rec["whole_frame"] == 1.0
+    assert main(["train", "--data", str(tiny_dataset), "-o", str(tmp_path / "x"), "-q",
+                 "--supervised-weight", "-1"]) == 2
