@@ -1,7 +1,8 @@
 """Harness speed: generate a 48-frame 320x180 ground-truth clip with all its passes.
 
     .venv/bin/python bench/harness_bench.py [--script enter] [--seed 7] [--keep DIR] [--quick]
-                                            [--convergence]
+                                            [--convergence] [--style procedural|photo]
+                                            [--lighting auto|classic|day|dim|night]
 
 Runs ``sintel_eval.dataset.generate`` (what ``python -m sintel_eval generate`` runs) into a
 fresh folder and prints, as the LAST stdout line, one JSON object (DESIGN.md "Benchmarks"):
@@ -14,7 +15,8 @@ fresh folder and prints, as the LAST stdout line, one JSON object (DESIGN.md "Be
 ``--convergence`` adds the Monte-Carlo quality of the chosen settings on one frame:
 ``harness.dof{N}spp_psnr_vs_1024spp_db`` and ``harness.deep{N}spp_psnr_vs_1024spp_db`` (sRGB PSNR
 of the denoised render against an un-denoised 1024-sample one). ``--quick`` runs 8 frames at
-160x90 (a smoke test; its keys say so).
+160x90 (a smoke test; its keys say so). ``--style photo`` times the photo style (textures from
+$RVR_TEXTURES or ../shared/data): its keys read ``harness.photo.clip48_320x180...``.
 """
 from __future__ import annotations
 
@@ -72,16 +74,23 @@ def main() -> int:
     parser.add_argument("--keep", metavar="DIR", help="write the clip here instead of a temporary folder")
     parser.add_argument("--quick", action="store_true", help="8 frames at 160x90 (smoke test)")
     parser.add_argument("--convergence", action="store_true", help="also measure Monte-Carlo convergence")
+    parser.add_argument("--style", choices=("procedural", "photo"), default="procedural",
+                        help="scene look (default procedural: the DESIGN.md key)")
+    parser.add_argument("--lighting", default="auto", help="lighting of the photo style (default auto)")
     args = parser.parse_args()
 
     from sintel_eval.dataset import GenerateConfig, generate
 
     frames, (w, h) = (8, (160, 90)) if args.quick else (48, (320, 180))
-    cfg = GenerateConfig(seed=args.seed, frames=frames, width=w, height=h, script=args.script).validated()
+    cfg = GenerateConfig(seed=args.seed, frames=frames, width=w, height=h, script=args.script, style=args.style,
+                         lighting=args.lighting).validated()
     key = f"harness.clip{frames}_{w}x{h}"
+    if args.style != "procedural":
+        key = f"harness.{args.style}.clip{frames}_{w}x{h}"
     load = os.getloadavg()[0]
     print(f"{key}: script {cfg.script}, seed {cfg.seed}, samples deep {cfg.samples} / dof {cfg.dof_samples} / "
-          f"train {cfg.train_samples}, train every {cfg.train_every}; load average at start {load:.2f} "
+          f"train {cfg.train_samples}, train every {cfg.train_every}, style {cfg.style}, lighting {cfg.lighting}; "
+          f"load average at start {load:.2f} "
           f"on {os.cpu_count()} CPUs", file=sys.stderr)
     with tempfile.TemporaryDirectory(prefix="rvr_harness_bench_") as tmp:
         out = Path(args.keep) if args.keep else Path(tmp) / "clip"
@@ -99,7 +108,7 @@ def main() -> int:
         f"{key}.dof_s_per_render": t["dof_s"] / max(t["dof_renders"], 1),
         f"{key}.s_per_frame": total / frames,
     }
-    print(f"{t['deep_renders']} pinhole + {t['dof_renders']} DOF renders; load average at end "
+    print(f"look {result.look}; {t['deep_renders']} pinhole + {t['dof_renders']} DOF renders; load average at end "
           f"{os.getloadavg()[0]:.2f}", file=sys.stderr)
     if args.convergence:
         figures.update(_convergence(cfg.script, cfg.seed, cfg.samples, cfg.dof_samples, w, h))

@@ -4,8 +4,10 @@ Importing the package does not import bpy; ``render_demo_scene`` and ``generate`
 
 Generator modules: camera_math (lens constants, units; no bpy), scene_plan (seeded scene
 description; no bpy), scripts_events (scripts, events, focus tracks; no bpy), speech
-(espeak-ng, voice activity, mouths; no bpy), bpy_util / materials / scene_builder (Blender
-objects), passes (Cycles renders), dataset (the clip folder, resume), generate_cli (CLI).
+(espeak-ng, voice activity, mouths; no bpy), look (seeded style, lighting, figures and photo
+texture choices; no bpy), textures (real-image texture library and crops; no bpy), bpy_util /
+materials / photo_materials / figures / scene_builder (Blender objects), passes (Cycles
+renders), dataset (the clip folder, resume), generate_cli (CLI).
 """
 from __future__ import annotations
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import os
 import shutil
@@ -34,6 +35,9 @@ from .scripts_events import SCRIPTS, check_script
 
 FORMAT = "rvr-laaf-harness/1"
 HARNESS_VERSION = 1  # bump when the scene generator changes what a seed renders
+STYLES = ("auto", "procedural", "photo")
+LIGHTING_CHOICES = ("auto", "classic", "day", "dim", "night")
+logger = logging.getLogger(__name__)
 OUR_ENTRIES = ("manifest.json", "events.json", "input", "input.mp4", "audio", "gt", "dof", "train", "done")
 TRACKS = ("constant", "rack")
 MAX_SEED = 2 ** 32 - 1
@@ -62,7 +66,14 @@ class GenerateConfig:
     of the mid/small apertures of the aperture triplets (less blur, converge faster); f_numbers: (large, mid, small) -- the tracks use ``large``, the aperture
     triplet all three; f_number_ref: the f-number of aperture scale 1 (defines K);
     train_every: training passes on frames 1, 1 + n, ... (0 = none); pull_frames: length of
-    the rack focus pull; fps: frame rate of the clip and its audio."""
+    the rack focus pull; fps: frame rate of the clip and its audio.
+
+    style: "procedural" (the original look), "photo" (photo textures, people-like figures,
+    varied lighting) or "auto" (photo when a texture source is found, else procedural, with a
+    warning); lighting: "auto" (procedural: classic; photo: a seeded day, dim or night),
+    "classic", "day", "dim" or "night"; textures: the texture folder (None: $RVR_TEXTURES or
+    ../shared/data); texture_cache: where crops go (None: $RVR_TEXTURE_CACHE or
+    ~/.cache/rvr-laaf/textures). See sintel_eval/DATASET.md "Looks"."""
 
     seed: int
     frames: int = 48
@@ -78,6 +89,10 @@ class GenerateConfig:
     pull_frames: int = 10
     denoise: bool = True
     fps: int = 24
+    style: str = "procedural"
+    lighting: str = "auto"
+    textures: str | None = None
+    texture_cache: str | None = None
 
     def validated(self) -> "GenerateConfig":
         """A normalised copy; raises InputError naming the setting and the fix."""
@@ -105,7 +120,16 @@ class GenerateConfig:
             raise InputError(f"--pull-frames {self.pull_frames}: a focus pull lasts at least 1 frame")
         if int(self.fps) < 1:
             raise InputError(f"fps={self.fps}: use a positive frame rate")
-        return replace(self, seed=seed, script=script, frames=int(self.frames), width=int(self.width),
+        style = str(self.style).strip().lower()
+        if style not in STYLES:
+            raise InputError(f"--style '{self.style}': use one of {', '.join(STYLES)}")
+        lighting = str(self.lighting).strip().lower()
+        if lighting not in LIGHTING_CHOICES:
+            raise InputError(f"--lighting '{self.lighting}': use one of {', '.join(LIGHTING_CHOICES)}")
+        return replace(self, seed=seed, style=style, lighting=lighting,
+                       textures=str(self.textures) if self.textures else None,
+                       texture_cache=str(self.texture_cache) if self.texture_cache else None,
+                       script=script, frames=int(self.frames), width=int(self.width),
                        height=int(self.height), samples=int(self.samples), dof_samples=int(self.dof_samples),
                        train_samples=int(self.train_samples),
                        f_numbers=f_numbers, f_number_ref=float(self.f_number_ref), train_every=int(self.train_every),
@@ -116,22 +140,37 @@ class GenerateConfig:
         d["f_numbers"] = list(self.f_numbers)
         return d
 
-    def config_hash(self, blender_version: str) -> str:
-        """Identity of what the run renders (settings, generator version, Blender version)."""
-        blob = json.dumps({"config": self.to_dict(), "format": FORMAT, "harness": HARNESS_VERSION,
-                           "blender": blender_version}, sort_keys=True)
-        return hashlib.sha256(blob.encode()).hexdigest()[:16]
+    @property
+    def original_look(self) -> bool:
+        """True for the original procedural look (no LookPlan): its hash is the one of earlier versions."""
+        return self.style == "procedural" and self.lighting in ("auto", "classic")
+
+    def config_hash(self, blender_version: str, texture_digest: str | None = None) -> str:
+        """Identity of what the run renders (settings, generator version, Blender version; for a
+        look other than the original one also the look's version and the texture library's
+        content digest -- texture and cache paths are not part of it)."""
+        from .look import LOOK_VERSION
+
+        config = self.to_dict()
+        for key in ("style", "lighting", "textures", "texture_cache"):
+            config.pop(key)
+        blob = {"config": config, "format": FORMAT, "harness": HARNESS_VERSION, "blender": blender_version}
+        if not self.original_look:
+            blob["look"] = {"style": self.style, "lighting": self.lighting, "version": LOOK_VERSION,
+                            "textures": texture_digest}
+        return hashlib.sha256(json.dumps(blob, sort_keys=True).encode()).hexdigest()[:16]
 
 
 @dataclass
 class GenerateResult:
-    """What a run did: the folder, frames rendered now, frames kept from an earlier run, and
-    timings in seconds (per pass kind and total)."""
+    """What a run did: the folder, frames rendered now, frames kept from an earlier run,
+    timings in seconds (per pass kind and total) and the look (style, lighting, figures)."""
 
     out: Path
     rendered: list[int]
     kept: list[int]
     timings: dict = field(default_factory=dict)
+    look: dict = field(default_factory=dict)
 
 
 # --------------------------------------------------------------------------------------------- files
@@ -272,11 +311,14 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
     t_start = time.perf_counter()
     cfg = config.validated()
     out = Path(out_dir)
-    chash = cfg.config_hash(bpy.app.version_string)
     say = log or (lambda msg: None)
+    cfg, library = resolve_style(cfg)
+    chash = cfg.config_hash(bpy.app.version_string, library.digest if (library and cfg.style == "photo") else None)
     # -- the plan and the speech first: their errors (no espeak-ng, clip too short for two
     # turns) come before the folder is touched
-    plan = make_plan(cfg.seed, cfg.script, cfg.frames, cfg.fps)
+    plan = make_plan(cfg.seed, cfg.script, cfg.frames, cfg.fps, style=cfg.style, lighting=cfg.lighting,
+                     library=library)
+    texture_files = cut_textures(plan, library)
     conversation = None
     if cfg.script == "conversation":
         from .speech import plan_conversation
@@ -290,7 +332,7 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
     reset_blender()
     scene = bpy.context.scene
     render_settings = configure_cycles(scene, cfg.width, cfg.height, cfg.seed, cfg.denoise, cfg.fps)
-    built = build_scene(plan, cfg.width, cfg.height)
+    built = build_scene(plan, cfg.width, cfg.height, texture_files=texture_files)
 
     apply_frame(built, plan, 1, mouth)
     probe = Lens(FOCAL_MM, SENSOR_WIDTH_MM, cfg.width, cfg.f_number_ref, 1.0)
@@ -314,6 +356,7 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
 
     manifest = _manifest(cfg, chash, plan, lens, built, records, cameras, events, rack, tracks, conversation,
                          render_settings)
+    manifest["scene"]["look"] = look_record(plan, library, texture_files)
     old_runs = _old_runs(out / "manifest.json")
     manifest["runs"] = old_runs
     write_json(out / "manifest.json", manifest)
@@ -354,7 +397,59 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
     manifest["status"] = {"complete": done == cfg.frames, "frames_done": done}
     write_json(out / "manifest.json", manifest)
     say(f"{out}: {len(rendered)} frame(s) rendered, {len(kept)} kept, {total:.1f} s")
-    return GenerateResult(out, rendered, kept, timings)
+    look = manifest["scene"]["look"]
+    return GenerateResult(out, rendered, kept, timings, {k: look[k] for k in ("style", "lighting", "figures")}
+                          | {"textures": len(look["textures"]), "fallback": look["fallback"]})
+
+
+def resolve_style(cfg: GenerateConfig):
+    """(config with a concrete style, texture library or None). ``auto`` becomes ``photo`` when
+    the texture library has a source, else ``procedural``; ``photo`` without a source keeps its
+    figures and lighting on procedural materials. Both fallbacks log a warning."""
+    if cfg.style == "procedural":
+        return cfg, None
+    from .textures import discover
+
+    library = discover(cfg.textures, cfg.texture_cache)
+    if library:
+        return replace(cfg, style="photo"), library
+    why = "; ".join(library.notes) or "no images or clips found"
+    if cfg.style == "auto":
+        logger.warning("no photo texture source (%s): generating the procedural style instead", why)
+        return replace(cfg, style="procedural"), None
+    logger.warning("--style photo without a texture source (%s): procedural materials on the photo-style set", why)
+    return cfg, library
+
+
+def cut_textures(plan, library) -> dict:
+    """slot -> crop file (in the texture cache) of every photo texture the plan chose."""
+    from .textures import cut
+
+    look = getattr(plan, "look", None)
+    if look is None or not library or not look.textures:
+        return {}
+    try:
+        return {slot: str(cut(library, use)) for slot, use in sorted(look.textures.items())}
+    except OSError as exc:
+        raise OutputError(f"cannot prepare the photo textures in '{library.cache}' ({exc}): choose a writable "
+                          "--texture-cache folder") from exc
+
+
+def look_record(plan, library, texture_files: dict) -> dict:
+    """The manifest's ``scene.look``: style, lighting, figures, texture library and every texture
+    used (slot, source name, sha256 of the source file, crop, cache file)."""
+    from .textures import used_sources
+
+    look = getattr(plan, "look", None)
+    if look is None:
+        return {"style": "procedural", "lighting": "classic", "figures": "classic", "textures": [], "sources": [],
+                "library": None, "fallback": None}
+    uses = [look.textures[s] for s in sorted(look.textures)] if texture_files else []
+    return {"style": look.style, "lighting": look.lighting.mode, "figures": look.figures_model,
+            "lighting_detail": asdict(look.lighting), "version": look.version,
+            "textures": [asdict(u) | {"file": Path(texture_files[u.slot]).name} for u in uses],
+            "sources": used_sources(library, uses) if uses else [],
+            "library": library.describe() if library is not None else None, "fallback": look.fallback}
 
 
 def _old_runs(path: Path) -> list:
@@ -599,4 +694,4 @@ def _manifest(cfg: GenerateConfig, chash: str, plan, lens: Lens, built, records:
 
 
 __all__ = ["GenerateConfig", "GenerateResult", "generate", "parse_seed", "frame_complete", "SCRIPTS", "FORMAT",
-           "write_png"]
+           "write_png", "resolve_style", "STYLES", "LIGHTING_CHOICES"]

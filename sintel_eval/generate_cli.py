@@ -2,12 +2,17 @@
 
     python -m sintel_eval generate --seed K [--frames N] [--size WxH] [--script NAME] [--samples S]
                                    [--dof-samples S] [--train-samples S] [--f-numbers L,M,S] [--train-every N]
-                                   [--pull-frames N] [--no-denoise] [--force] [-q] -o DIR
+                                   [--pull-frames N] [--style auto|procedural|photo]
+                                   [--lighting auto|classic|day|dim|night] [--textures DIR]
+                                   [--texture-cache DIR] [--no-denoise] [--force] [-q] -o DIR
 """
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
+
+DEFAULT_STYLE = "auto"  # photo when a texture source is found (sintel_eval/DATASET.md "Looks")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -77,6 +82,22 @@ def add_parser(sub) -> argparse.ArgumentParser:
     gen.add_argument("--train-every", type=_non_negative, default=4, metavar="N",
                      help="training pairs/triplets on frames 1, 1+N, ... (0 = none; default 4)")
     gen.add_argument("--pull-frames", type=_positive, default=10, metavar="N", help="rack pull length (default 10)")
+    gen.add_argument("--style", choices=("auto", "procedural", "photo"), default=DEFAULT_STYLE,
+                     help="look of the scene: photo (photo textures cut from real images, people-like figures, "
+                          "varied lighting), procedural (the original procedural materials and figures), or auto: "
+                          "photo when a texture source is found, else procedural with a warning "
+                          f"(default {DEFAULT_STYLE})")
+    gen.add_argument("--lighting", choices=("auto", "classic", "day", "dim", "night"), default="auto",
+                     help="lighting: day (bright interior), dim, night (dark, bright small emitters), classic (the "
+                          "original dusk), or auto: classic for the procedural style, a seeded day/dim/night for "
+                          "photo (default auto)")
+    gen.add_argument("--textures", metavar="DIR", default=None,
+                     help="folder of real images and clips to cut photo textures from (default $RVR_TEXTURES or "
+                          "../shared/data beside the repository; scikit-image's sample photos are added when it "
+                          "is installed)")
+    gen.add_argument("--texture-cache", metavar="DIR", default=None,
+                     help="where extracted clip frames and texture crops go (default $RVR_TEXTURE_CACHE or "
+                          "~/.cache/rvr-laaf/textures)")
     gen.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
     gen.add_argument("--force", action="store_true",
                      help="regenerate from scratch (removes only the harness' own files in DIR)")
@@ -96,12 +117,14 @@ def main(args: argparse.Namespace) -> int:
 
     from .dataset import GenerateConfig, generate
 
+    logging.basicConfig(level=logging.WARNING, format="warning: %(message)s")  # the style fallbacks warn
     try:
         cfg = GenerateConfig(seed=args.seed, frames=args.frames, width=args.size[0], height=args.size[1],
                              script=args.script, samples=args.samples, dof_samples=args.dof_samples,
                              train_samples=args.train_samples,
                              f_numbers=args.f_numbers, train_every=args.train_every, pull_frames=args.pull_frames,
-                             denoise=not args.no_denoise).validated()
+                             denoise=not args.no_denoise, style=args.style, lighting=args.lighting,
+                             textures=args.textures, texture_cache=args.texture_cache).validated()
         result = generate(args.out, cfg, force=args.force, progress=not args.quiet)
     except RvrError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -112,5 +135,7 @@ def main(args: argparse.Namespace) -> int:
     t = result.timings
     print(f"wrote {result.out}: {len(result.rendered)} frame(s) rendered, {len(result.kept)} kept from an earlier "
           f"run; {t['total_s']:.1f} s (deep {t['deep_s']:.1f} s / {t['deep_renders']} renders, "
-          f"dof {t['dof_s']:.1f} s / {t['dof_renders']} renders, encode {t['encode_s']:.1f} s)")
+          f"dof {t['dof_s']:.1f} s / {t['dof_renders']} renders, encode {t['encode_s']:.1f} s); look: "
+          f"{result.look.get('style')} style, {result.look.get('lighting')} lighting, "
+          f"{result.look.get('textures', 0)} photo texture(s)")
     return 0

@@ -5,6 +5,12 @@ set, the characters (primitives under one Empty each, with hips, a mouth and a f
 the movers, the emitters and the lights. :func:`apply_frame` poses everything for one frame
 (camera, walking, mouths) and :func:`subject_frame` measures a subject on the posed frame.
 Units: metres, radians; world axes as in scene_plan.
+
+A plan without a look (``plan.look is None``: procedural style, classic lighting) builds the
+original scene. With a :class:`~sintel_eval.look.LookPlan` the same set gets the look's
+materials (photo textures where it chose them), lighting (day/dim/night: world, sun, key and
+fill lights, lamps, extra light strings, window and bulb strengths), photo billboards and
+people-like figures (:mod:`sintel_eval.figures`); the layout, motions and events are the same.
 """
 from __future__ import annotations
 
@@ -20,6 +26,7 @@ from .scene_plan import BULB_RADIANCE, BULB_RADIUS_M, FOCAL_MM, SENSOR_WIDTH_MM,
 from .scripts_events import SubjectFrame
 
 SET_ID, PROPS_ID, RAILING_ID, STRANDS_ID, PLANT_ID, LIGHTS_ID, WINDOWS_ID = 0, 21, 30, 31, 32, 40, 41
+BILLBOARDS_ID, LAMPS_ID = 42, 43
 HIP_Z = 0.9
 MOUTH_CLOSED, MOUTH_OPEN = 0.15, 1.0  # z scale of the mouth at opening 0 and 1
 STRIDE_M = 1.2
@@ -28,7 +35,8 @@ STRIDE_M = 1.2
 @dataclass
 class CharacterRig:
     """Blender objects of one character: root Empty, hips (left, right), mouth, focus Empty and
-    every mesh part with its local vertices (for the projected bounding box)."""
+    every mesh part with its local vertices (for the projected bounding box); a person figure
+    also has joints (knees, shoulders, elbows, jaw) and its mouth's x/y scale."""
 
     root: object
     hips: tuple
@@ -36,6 +44,8 @@ class CharacterRig:
     focus: object
     parts: list = field(default_factory=list)
     verts: list = field(default_factory=list)
+    joints: dict = field(default_factory=dict)
+    mouth_scale: tuple = (1.3, 0.55)
 
 
 @dataclass
@@ -51,8 +61,11 @@ class BuiltScene:
     emitters: list
 
 
-def build_scene(plan: ScenePlan, width: int, height: int) -> BuiltScene:
-    """Create the plan's objects in ``bpy.context.scene`` (expects an empty factory state)."""
+def build_scene(plan: ScenePlan, width: int, height: int, texture_files: dict | None = None) -> BuiltScene:
+    """Create the plan's objects in ``bpy.context.scene`` (expects an empty factory state).
+
+    texture_files: slot -> image file of the look's photo textures (see
+    :func:`sintel_eval.textures.cut`); a slot without a file keeps its procedural material."""
     scene = bpy.context.scene
     rng = np.random.default_rng([plan.seed, 101])
     cam_data = bpy.data.cameras.new("camera")
@@ -75,18 +88,32 @@ def build_scene(plan: ScenePlan, width: int, height: int) -> BuiltScene:
 
     ids = {SET_ID: "set"}
     emitters: list[dict] = []
-    _build_set(plan, rng, ids, emitters)
-    rigs = {c.name: _build_character(c, rng) for c in plan.characters}
+    look = getattr(plan, "look", None)
+    textures = _texture_files(plan, texture_files)
+    _build_set(plan, rng, ids, emitters, textures)
+    if look is None or look.figures_model == "classic":
+        rigs = {c.name: _build_character(c, rng) for c in plan.characters}
+    else:
+        rigs = {c.name: _build_person(c, look.figures[c.name], rng, textures) for c in plan.characters}
     for c in plan.characters:
         ids[c.index] = c.name
     movers = {}
     for m in plan.movers:
-        obj = sphere(m.name, m.radius, (0.0, m.motion.start[1], m.z), mat.checker_ball(f"{m.name}_mat"), segments=32)
+        ball_mat = mat.checker_ball(f"{m.name}_mat")
+        if m.name in textures:
+            from . import photo_materials as photo
+
+            ball_mat = photo.tiled(f"{m.name}_mat", textures[m.name], textures.tile(m.name), box=True, roughness=0.4)
+        obj = sphere(m.name, m.radius, (0.0, m.motion.start[1], m.z), ball_mat, segments=32)
         obj.pass_index = m.index
         obj.rotation_mode = "AXIS_ANGLE"
         movers[m.name] = obj
         ids[m.index] = m.name
-    _lights(plan, rigs[plan.main])
+    if look is None:
+        _lights(plan, rigs[plan.main])
+    else:
+        _look_extras(plan, look, textures, rng, ids, emitters)
+        _look_lights(plan, look)
     cap = np.max([e["radiance"] for e in emitters], axis=0).astype(np.float32)
     return BuiltScene(camera, rigs, movers, {str(k): v for k, v in sorted(ids.items())}, cap, emitters)
 
@@ -113,37 +140,83 @@ def _warm(rng: np.random.Generator) -> tuple[float, float, float]:
     return tuple(float(c) for c in rgb / rgb.max())
 
 
-def _build_set(plan: ScenePlan, rng: np.random.Generator, ids: dict, emitters: list) -> None:
+class _Textures(dict):
+    """slot -> crop file of the plan's photo textures (empty without a photo look)."""
+
+    def __init__(self, files: dict, uses: dict):
+        super().__init__(files)
+        self.uses = uses
+
+    def tile(self, slot: str) -> float:
+        return float(self.uses[slot].tile_m or 1.0)
+
+
+def _texture_files(plan: ScenePlan, files: dict | None) -> _Textures:
+    look = getattr(plan, "look", None)
+    files = files or {}
+    uses = look.textures if look is not None else {}
+    return _Textures({k: v for k, v in files.items() if k in uses}, uses)
+
+
+def _build_set(plan: ScenePlan, rng: np.random.Generator, ids: dict, emitters: list, textures: dict | None = None
+               ) -> None:
     sp = plan.set
+    look = getattr(plan, "look", None)
+    textures = textures if textures is not None else {}
+    photo = None
+    if textures:
+        from . import photo_materials as photo
     x0, x1 = -30.0, 30.0
+    wall_mat = mat.brick_wall("wall", sp.brick_a, sp.brick_b, rng.uniform(0, 50, 3))
+    if "wall" in textures:
+        wall_mat = photo.tiled("wall_photo", textures["wall"], textures.tile("wall"), swizzle="xz", roughness=0.85,
+                               specular=0.1)
     wall = quad("wall", [(x0, sp.wall_y, 0.0), (x1, sp.wall_y, 0.0), (x1, sp.wall_y, 16.0), (x0, sp.wall_y, 16.0)],
-                mat.brick_wall("wall", sp.brick_a, sp.brick_b, rng.uniform(0, 50, 3)))
+                wall_mat)
     floor_mat = mat.checker_floor("floor", tuple(rng.uniform(0.22, 0.36, 3)), tuple(rng.uniform(0.06, 0.14, 3)),
                                   scale=float(rng.uniform(0.8, 1.6)))
+    if "floor" in textures:
+        floor_mat = photo.tiled("floor_photo", textures["floor"], textures.tile("floor"), swizzle="xy",
+                                roughness=0.6, specular=0.3)
     floor = quad("floor", [(x0, -5.0, 0.0), (x1, -5.0, 0.0), (x1, sp.wall_y, 0.0), (x0, sp.wall_y, 0.0)], floor_mat)
     wall.pass_index = floor.pass_index = SET_ID
+    window_rgb, window_gain = (1.0, 0.82, 0.55), 1.0
+    if look is not None:
+        window_rgb, window_gain = tuple(look.lighting.window_rgb), float(look.lighting.window_gain)
     for i, (wx, wz, ww, wh, strength) in enumerate(sp.windows):
         y = sp.wall_y - 0.02
+        strength = strength * window_gain
         w = quad(f"window_{i}", [(wx - ww / 2, y, wz - wh / 2), (wx + ww / 2, y, wz - wh / 2),
                                  (wx + ww / 2, y, wz + wh / 2), (wx - ww / 2, y, wz + wh / 2)],
-                 mat.window(f"window_{i}_mat", (1.0, 0.82, 0.55), strength))
+                 mat.window(f"window_{i}_mat", window_rgb, strength))
         w.visible_diffuse = w.visible_glossy = w.visible_shadow = w.visible_transmission = False
         w.pass_index = WINDOWS_ID
         emitters.append({"name": f"window_{i}", "position_m": [wx, y, wz], "radius_m": 0.5 * min(ww, wh),
-                         "radiance": [strength * c for c in (1.0, 0.82, 0.55)], "camera_visible": True})
+                         "radiance": [strength * c for c in window_rgb], "camera_visible": True})
     ids[WINDOWS_ID] = "windows"
 
     for i, p in enumerate(sp.props):
         pid = PROPS_ID + i
         ids[pid] = f"{p.kind}_{i}"
+        slot = f"{p.kind}_{i}"
         if p.kind == "crate":
-            objs = [box(f"crate_{i}", (p.size, p.size, p.size * 1.6), (p.x, p.y, p.size * 0.8),
-                        mat.wood(f"crate_{i}_mat", rng.uniform(0, 10, 3)))]
+            crate_mat = mat.wood(f"crate_{i}_mat", rng.uniform(0, 10, 3))
+            if slot in textures:
+                crate_mat = photo.tiled(f"crate_{i}_photo", textures[slot], textures.tile(slot), box=True,
+                                        roughness=0.6)
+            objs = [box(f"crate_{i}", (p.size, p.size, p.size * 1.6), (p.x, p.y, p.size * 0.8), crate_mat)]
         elif p.kind == "pillar":
-            objs = [cylinder(f"pillar_{i}", p.size, 0.0, 3.4, (p.x, p.y), mat.marble(f"pillar_{i}_mat",
-                                                                                     rng.uniform(0, 50, 3)), 40)]
+            pillar_mat = mat.marble(f"pillar_{i}_mat", rng.uniform(0, 50, 3))
+            if slot in textures:
+                pillar_mat = photo.tiled(f"pillar_{i}_photo", textures[slot], textures.tile(slot), box=True,
+                                         roughness=0.4)
+            objs = [cylinder(f"pillar_{i}", p.size, 0.0, 3.4, (p.x, p.y), pillar_mat, 40)]
         elif p.kind == "panel":
-            objs = [box(f"panel_{i}", (p.size, 0.06, 1.9), (p.x, p.y, 0.95), mat.flat(f"panel_{i}_mat", p.color))]
+            panel_mat = mat.flat(f"panel_{i}_mat", p.color)
+            if slot in textures:  # a poster: the photo mapped once onto the panel
+                panel_mat = photo.mapped(f"panel_{i}_photo", textures[slot], (-0.5 * p.size, -0.95), (p.size, 1.9),
+                                         roughness=0.45)
+            objs = [box(f"panel_{i}", (p.size, 0.06, 1.9), (p.x, p.y, 0.95), panel_mat)]
         elif p.kind == "chrome":
             ped = box(f"pedestal_{i}", (0.4, 0.4, 0.9), (p.x, p.y, 0.45), mat.flat(f"pedestal_{i}_mat", p.color))
             ball = sphere(f"chrome_{i}", p.size, (p.x, p.y, 0.9 + p.size), mat.chrome(f"chrome_{i}_mat"), 48)
@@ -191,11 +264,13 @@ def _build_set(plan: ScenePlan, rng: np.random.Generator, ids: dict, emitters: l
     for k in range(len(pts) - 1):
         o = rod(f"light_wire_{k}", pts[k], pts[k + 1], 0.004, wire, 6)
         o.pass_index = LIGHTS_ID
+    gain = float(look.lighting.bulb_gain) if look is not None else 1.0
     for k, x in enumerate(xs):
         _emitter_sphere(f"bulb_{k}", (float(x), y + float(rng.uniform(-0.3, 0.3)), sag(float(x))),
-                        float(rng.uniform(*BULB_RADIUS_M)), _warm(rng), float(rng.uniform(*BULB_RADIANCE)), emitters)
+                        float(rng.uniform(*BULB_RADIUS_M)), _warm(rng), gain * float(rng.uniform(*BULB_RADIANCE)),
+                        emitters)
     for k, (x, yy, zz, r, strength) in enumerate(sp.loose_lights):
-        _emitter_sphere(f"light_{k}", (x, yy, zz), r, _warm(rng), strength, emitters)
+        _emitter_sphere(f"light_{k}", (x, yy, zz), r, _warm(rng), gain * strength, emitters)
     ids[LIGHTS_ID] = "lights"
 
 
@@ -332,6 +407,134 @@ def _lights(plan: ScenePlan, main_rig: CharacterRig) -> None:
     scene.world = world
 
 
+# --------------------------------------------------------------------------------------------- looks
+
+
+def _build_person(c: Character, fl, rng: np.random.Generator, textures: dict) -> CharacterRig:
+    from .figures import build_person
+
+    def cloth(slot, rgb, kind, name):
+        if slot and slot in textures:
+            from . import photo_materials as photo
+
+            return photo.tiled(name, textures[slot], textures.tile(slot), box=True, roughness=0.85, specular=0.2)
+        if kind == "sweater":
+            stripe = tuple(float(v) for v in np.clip(np.array(rgb) * 1.8 + 0.08, 0.0, 0.9))
+            return mat.sweater(name, tuple(rgb), stripe)
+        return mat.flat(name, tuple(rgb), roughness=0.75 if kind != "jacket" else 0.55)
+
+    f = build_person(c, fl, rng, cloth)
+    verts = []
+    for p in f["parts"]:
+        arr = np.empty(len(p.data.vertices) * 3, dtype=np.float64)
+        p.data.vertices.foreach_get("co", arr)
+        verts.append(arr.reshape(-1, 3))
+    return CharacterRig(f["root"], f["hips"], f["mouth"], f["focus"], f["parts"], verts, f["joints"],
+                        f["mouth_scale"])
+
+
+def _string_of_lights(name: str, y: float, z: float, bulbs: int, gain: float, rng: np.random.Generator,
+                      emitters: list) -> None:
+    w = 1.15 * half_width(y)
+    wire = mat.flat(f"{name}_wire_mat", (0.02, 0.02, 0.02), roughness=0.5)
+    sag = lambda x: z - 0.3 * (1.0 - (x / w) ** 2)  # noqa: E731
+    pts = [(float(x), y, sag(float(x)) + 0.04) for x in np.linspace(-w, w, 9)]
+    for k in range(len(pts) - 1):
+        rod(f"{name}_wire_{k}", pts[k], pts[k + 1], 0.004, wire, 6).pass_index = LIGHTS_ID
+    for k, x in enumerate(np.linspace(-w, w, bulbs)):
+        _emitter_sphere(f"{name}_bulb_{k}", (float(x), y + float(rng.uniform(-0.2, 0.2)), sag(float(x))),
+                        float(rng.uniform(*BULB_RADIUS_M)), _warm(rng), gain * float(rng.uniform(*BULB_RADIANCE)),
+                        emitters)
+
+
+def _look_extras(plan: ScenePlan, look, textures: dict, rng: np.random.Generator, ids: dict, emitters: list) -> None:
+    """Billboards (photos of real scenes far behind), lamps and extra strings of lights."""
+    from . import photo_materials as photo
+
+    light = look.lighting
+    for b in look.billboards:
+        if b.slot not in textures:
+            continue
+        x0 = b.x - 0.5 * b.width
+        board = quad(b.slot, [(x0, b.y, b.z0), (x0 + b.width, b.y, b.z0), (x0 + b.width, b.y, b.z0 + b.height),
+                              (x0, b.y, b.z0 + b.height)],
+                     photo.mapped(f"{b.slot}_mat", textures[b.slot], (x0, b.z0), (b.width, b.height),
+                                  roughness=0.6, emission=light.billboard_gain))
+        board.pass_index = BILLBOARDS_ID
+        ids[BILLBOARDS_ID] = "billboards"
+        emitters.append({"name": b.slot, "position_m": [b.x, b.y, b.z0 + 0.5 * b.height],
+                         "radius_m": 0.5 * min(b.width, b.height), "radiance": [light.billboard_gain] * 3,
+                         "camera_visible": True})
+    pole_mat = mat.brushed_metal("lamp_pole_mat", metallic=0.3)
+    for k, lamp in enumerate(light.lamps):
+        objs = [rod(f"lamp_{k}_pole", (lamp.x, lamp.y, 0.0), (lamp.x, lamp.y, lamp.height), 0.02, pole_mat, 8)]
+        shade_rgb = tuple(lamp.rgb)
+        if lamp.kind == "floor":  # a glowing shade on a pole
+            shade = photo.glowing(f"lamp_{k}_shade_mat", shade_rgb, lamp.radiance, base=(0.8, 0.75, 0.65))
+            top = lamp.height + 0.12
+            objs.append(cylinder(f"lamp_{k}_shade", lamp.radius, lamp.height - 0.1, top, (lamp.x, lamp.y), shade, 20))
+            z = lamp.height + 0.01
+        else:  # a street lamp: a bare bright bulb under a small dark hood
+            objs.append(rod(f"lamp_{k}_arm", (lamp.x, lamp.y, lamp.height), (lamp.x, lamp.y - 0.4, lamp.height),
+                            0.02, pole_mat, 8))
+            z = lamp.height - 0.08
+            bulb = sphere(f"lamp_{k}_bulb", lamp.radius, (lamp.x, lamp.y - 0.4, z),
+                          photo.glowing(f"lamp_{k}_bulb_mat", shade_rgb, lamp.radiance, base=(0.9, 0.9, 0.9)), 16)
+            objs.append(bulb)
+        for o in objs:
+            o.pass_index = LAMPS_ID
+        emitters.append({"name": f"lamp_{k}", "position_m": [lamp.x, lamp.y, z], "radius_m": lamp.radius,
+                         "radiance": [lamp.radiance * c for c in shade_rgb], "camera_visible": True})
+        data = bpy.data.lights.new(f"lamp_{k}_light", type="POINT")
+        data.energy = float(lamp.energy_w)
+        data.color = shade_rgb
+        data.shadow_soft_size = float(lamp.radius)
+        obj = bpy.data.objects.new(f"lamp_{k}_light", data)
+        street = lamp.kind == "street"
+        obj.location = (lamp.x, lamp.y - (0.4 if street else 0.0), z - (0.2 if street else 0.25))
+        obj.visible_camera = False
+        bpy.context.scene.collection.objects.link(obj)
+        ids[LAMPS_ID] = "lamps"
+    for k, s in enumerate(light.strings):
+        _string_of_lights(f"string_{k}", s.y, s.z, s.bulbs, s.gain * light.bulb_gain, rng, emitters)
+
+
+def _look_lights(plan: ScenePlan, look) -> None:
+    """Key (area light on the main subject), fill (opposite, softer), sun and world of the look."""
+    from .bpy_util import aim
+
+    scene = bpy.context.scene
+    light = look.lighting
+    x, y = plan.character(plan.main).motion.start
+    for name, energy, side, size, rgb in (("key", light.key_energy, plan.set.key_side, 1.0, light.key_rgb),
+                                          ("fill", light.fill_energy, -plan.set.key_side, 2.5, light.world_rgb)):
+        if energy <= 0:
+            continue
+        data = bpy.data.lights.new(name, type="AREA")
+        data.energy = float(energy)
+        data.size = size
+        data.color = tuple(rgb)
+        obj = bpy.data.objects.new(name, data)
+        obj.location = (x + side * (1.3 if name == "key" else 2.0), y - (1.8 if name == "key" else 2.5),
+                        2.3 if name == "key" else 1.8)
+        aim(obj, (x, y, 1.4 if name == "fill" else 1.6))
+        obj.visible_camera = False
+        scene.collection.objects.link(obj)
+    if light.sun_energy > 0:
+        sun_data = bpy.data.lights.new("sun", type="SUN")
+        sun_data.energy = float(light.sun_energy)
+        sun_data.angle = math.radians(4.0)
+        sun_data.color = tuple(light.sun_rgb)
+        sun = bpy.data.objects.new("sun", sun_data)
+        sun.rotation_euler = (math.radians(90.0 - light.sun_elevation_deg), 0.0, math.radians(light.sun_azimuth_deg))
+        scene.collection.objects.link(sun)
+    world = bpy.data.worlds.new(f"world_{light.mode}")
+    bg = world.node_tree.nodes["Background"]
+    bg.inputs["Color"].default_value = (*light.world_rgb, 1.0)
+    bg.inputs["Strength"].default_value = float(light.world_strength)
+    scene.world = world
+
+
 # --------------------------------------------------------------------------------------------- per frame
 
 
@@ -353,7 +556,11 @@ def apply_frame(built: BuiltScene, plan: ScenePlan, frame: int, mouth: dict | No
         rig.hips[0].rotation_euler = (swing, 0.0, 0.0)
         rig.hips[1].rotation_euler = (-swing, 0.0, 0.0)
         opening = float(mouth[c.name][frame - 1]) if mouth and c.name in mouth else 0.0
-        rig.mouth.scale = (1.3, 0.55, MOUTH_CLOSED + (MOUTH_OPEN - MOUTH_CLOSED) * opening)
+        rig.mouth.scale = (*rig.mouth_scale, MOUTH_CLOSED + (MOUTH_OPEN - MOUTH_CLOSED) * opening)
+        if rig.joints:
+            from .figures import pose_person
+
+            pose_person(rig.joints, phase, walking, opening)
     for m in plan.movers:
         obj = built.movers[m.name]
         x, y = m.motion.position(frame)

@@ -169,7 +169,9 @@ class SetPlan:
 
 @dataclass
 class ScenePlan:
-    """Everything that defines a clip's scene. main/second: names of the two focus subjects."""
+    """Everything that defines a clip's scene. main/second: names of the two focus subjects;
+    look: the :class:`~sintel_eval.look.LookPlan` (style, lighting, figures, photo textures) or
+    None for the original procedural look."""
 
     seed: int
     script: str
@@ -182,6 +184,7 @@ class ScenePlan:
     main: str
     second: str
     notes: dict = field(default_factory=dict)
+    look: object = None
 
     def character(self, name: str) -> Character:
         return next(c for c in self.characters if c.name == name)

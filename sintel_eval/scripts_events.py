@@ -40,8 +40,13 @@ def check_script(script: str) -> str:
     return name
 
 
-def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int | None = None) -> ScenePlan:
-    """The seeded scene of ``script`` for a clip of ``frames`` frames (see the module docstring)."""
+def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int | None = None, *,
+              style: str = "procedural", lighting: str = "auto", library=None) -> ScenePlan:
+    """The seeded scene of ``script`` for a clip of ``frames`` frames (see the module docstring).
+
+    style, lighting, library: the look (:func:`sintel_eval.look.make_look`), drawn from its own
+    random stream: layout, motions and events do not depend on it. The defaults give the
+    original procedural look (``plan.look is None``)."""
     script = check_script(script)
     rng = np.random.default_rng([int(seed), SCRIPTS.index(script)])
     camera = make_camera(rng, frames)
@@ -122,8 +127,13 @@ def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int 
     movers = [_ball(rng, camera, frames)]
     if script == "random" and rng.uniform() < 0.5:
         movers.append(_ball(rng, camera, frames, name="ball_2", index=12))
-    return ScenePlan(seed=int(seed), script=script, frames=frames, fps=fps, camera=camera, set=set_plan,
+    plan = ScenePlan(seed=int(seed), script=script, frames=frames, fps=fps, camera=camera, set=set_plan,
                      characters=chars, movers=movers, main=chars[0].name, second=chars[1].name, notes=notes)
+    if style != "procedural" or lighting not in ("auto", "classic"):
+        from .look import make_look
+
+        plan.look = make_look(plan, style, lighting, library, SCRIPTS.index(script))
+    return plan
 
 
 
