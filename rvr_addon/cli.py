@@ -1,5 +1,6 @@
 """The ``rvr`` command line: ``rvr render INPUT --depth DEPTH ... -o OUT``, ``rvr render --demo``,
-``rvr train --data DIR -o RUN_DIR`` and ``rvr estimate INPUT -o CACHE``."""
+``rvr train --data DIR -o RUN_DIR``, ``rvr estimate INPUT -o CACHE``, ``rvr stabilize CACHE`` and
+``rvr eval-estimator --weights W --data HELDOUT -o REPORT``."""
 from __future__ import annotations
 
 import argparse
@@ -118,6 +119,8 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def add_train_parser(sub) -> None:
+    from .estimate.losses import LossWeights
+
     p = sub.add_parser("train", help="train the RGBD-HDR estimator (disparity + HDR from one frame)",
                        description="Train the RGBD-HDR estimator through the differentiable renderer (paper "
                                    "section 4.1) on harness clips and/or your own aperture-bracketed photos. "
@@ -135,9 +138,28 @@ def add_train_parser(sub) -> None:
     p.add_argument("--batch", type=int, default=1, help="samples per step (paper: 1)")
     p.add_argument("--crop", type=int, default=128, help="training crop side in px (default 128)")
     p.add_argument("--min-scale", type=float, default=0.5, help="smallest random resize factor (default 0.5)")
+    p.add_argument("--whole-frame", type=float, default=0.5, metavar="P",
+                   help="share of samples that are whole frames shrunk to about crop^2 px instead of crops, as the "
+                        "paper trained and as inference sees them (default 0.5)")
     p.add_argument("--vgg19", type=Path, metavar="PATH",
                    help="local VGG-19 state dict (torchvision layout) for the paper's perceptual loss")
     p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
+    sup = LossWeights()
+    p.add_argument("--supervised-weight", type=float, default=sup.supervised, metavar="W",
+                   help="weight of the supervised ground-truth terms on harness frames (ours, not the paper's; "
+                        f"photos have none); 0 = the paper's loss alone (default {sup.supervised:g})")
+    p.add_argument("--w-disparity", type=float, default=sup.sup_disparity,
+                   help=f"within them: L1 of D in %% of the frame width (default {sup.sup_disparity:g})")
+    p.add_argument("--w-disparity-grad", type=float, default=sup.sup_disparity_grad,
+                   help=f"multi-scale gradient matching of D (default {sup.sup_disparity_grad:g})")
+    p.add_argument("--w-exponent", type=float, default=sup.sup_exponent,
+                   help=f"L1 of 50 E on saturated pixels (default {sup.sup_exponent:g})")
+    p.add_argument("--w-exponent-zero", type=float, default=sup.sup_exponent_zero,
+                   help=f"pull of E toward 0 on unsaturated pixels (default {sup.sup_exponent_zero:g})")
+    p.add_argument("--disparity-invariant", action="store_true",
+                   help="supervise D only up to a per-sample least-squares scale and shift (MiDaS-style)")
+    p.add_argument("--threads", type=int, metavar="N",
+                   help="torch CPU threads (default: torch's choice; 1 is much faster when other jobs share the cores)")
     p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints and plots")
     p.add_argument("--seed", type=int, default=0, help="seed of the model init and the sample draws")
     p.add_argument("--photo-max-side", type=int, default=1024, help="bracketed photos are downscaled to this")
@@ -153,10 +175,22 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     if not 0 < args.min_scale <= 1:
         raise RvrError(f"--min-scale must be in (0, 1], got {args.min_scale}")
+    sup = (args.supervised_weight, args.w_disparity, args.w_disparity_grad, args.w_exponent, args.w_exponent_zero)
+    if min(sup) < 0:
+        raise RvrError(f"--supervised-weight and the --w-* weights must be >= 0, got {sup}")
+    if args.threads is not None:
+        if args.threads < 1:
+            raise RvrError(f"--threads must be >= 1, got {args.threads}")
+        import torch
+
+        torch.set_num_threads(args.threads)
+    weights = LossWeights(smooth=args.w_smooth, supervised=args.supervised_weight, sup_disparity=args.w_disparity,
+                          sup_disparity_grad=args.w_disparity_grad, sup_exponent=args.w_exponent,
+                          sup_exponent_zero=args.w_exponent_zero, disparity_invariant=args.disparity_invariant)
     settings = TrainSettings(
         run_dir=args.output, data=args.data, user_photos=args.user_photos, iterations=args.iterations,
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
-        weights=LossWeights(smooth=args.w_smooth), checkpoint_every=args.checkpoint_every, seed=args.seed,
+        whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align)
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
@@ -223,6 +257,44 @@ def cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_eval_estimator_parser(sub) -> None:
+    p = sub.add_parser("eval-estimator", help="score estimator weights against ground truth (harness, Middlebury)",
+                       description="Run estimator weights on held-out harness clips (GT disparity and HDR) and/or "
+                                   "the Middlebury 2014 motorcycle view shipped with scikit-image, and write a report "
+                                   "folder: summary.json (estimate.* keys), README.md and comparison PNGs.")
+    p.add_argument("--weights", type=Path, help="estimator weights (RUN_DIR/estimator.pt; default: the shipped ones)")
+    p.add_argument("--data", action="append", type=Path, default=[], metavar="DIR",
+                   help="held-out harness dataset (clips NOT used for training; repeatable)")
+    p.add_argument("--motorcycle", action="store_true", help="also score the Middlebury 2014 motorcycle view")
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="REPORT", help="report folder")
+    p.add_argument("--max-frames", type=int, metavar="N", help="at most N frames per clip")
+    p.add_argument("--every", type=int, default=1, metavar="K", help="every K-th frame of a clip (default 1)")
+    p.add_argument("--compare-frames", type=int, default=3, metavar="K", help="comparison PNGs (default 3)")
+    p.add_argument("--max-pixels", type=int, metavar="P",
+                   help="run the network on copies shrunk to at most P pixels (D sliced, E gated at full size); "
+                        "to match the resolution it was trained at")
+    p.add_argument("--force", action="store_true", help="replace an existing report folder")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_eval_estimator)
+
+
+def cmd_eval_estimator(args: argparse.Namespace) -> int:
+    import json
+
+    from .estimate.evaluate import EvalSettings, evaluate
+
+    if (args.max_frames is not None and args.max_frames < 1) or args.every < 1 or args.compare_frames < 0 \
+            or (args.max_pixels is not None and args.max_pixels < 1):
+        raise RvrError("--max-frames, --every and --max-pixels must be >= 1, --compare-frames >= 0")
+    summary = evaluate(EvalSettings(output=args.output, weights=args.weights, data=list(args.data),
+                                    motorcycle=args.motorcycle, max_frames=args.max_frames, every=args.every,
+                                    compare_frames=args.compare_frames, force=args.force,
+                                    max_pixels=args.max_pixels), progress=not args.quiet)
+    print(json.dumps(summary, indent=1, sort_keys=True))
+    print(f"wrote {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="rvr", description="RVR-LAAF: refocusable video rendering.")
     parser.add_argument("--version", action="version", version=f"rvr {__version__}")
@@ -230,6 +302,13 @@ def build_parser() -> argparse.ArgumentParser:
     add_render_parser(sub)
     add_train_parser(sub)
     add_estimate_parser(sub)
+    add_eval_estimator_parser(sub)
+    from .laaf.commands import add_parsers as add_laaf_parsers
+
+    add_laaf_parsers(sub)  # rvr autofocus, rvr eval-focus
+    from .temporal.commands import add_parser as add_stabilize_parser
+
+    add_stabilize_parser(sub)  # rvr stabilize
     return parser
 
 

@@ -156,12 +156,14 @@ def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path,
 
 def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str] | None = None, force: bool = False,
                  max_frames: int | None = None, settings: ScoreSettings | None = None, progress: bool = True,
-                 compare_frames: int = 3) -> Ablation:
+                 compare_frames: int = 3, estimator_weights: str | Path | None = None) -> Ablation:
     """Run the ablation on a dataset and write the report folder ``report``.
 
     variants: names from :data:`.variants.VARIANTS` (None = all that can run here).
     max_frames: evaluate only the first N frames of each clip. compare_frames: frames per run
-    shown in the side-by-side comparison images.
+    shown in the side-by-side comparison images. estimator_weights: weights of the RGBD-HDR
+    estimator for the ``estimated_*`` rows (None: the shipped weights; without any the rows are
+    reported unavailable).
     Raises InputError (not a dataset; no clip usable; unknown or unavailable variant named),
     OutputError (report exists without force).
     """
@@ -172,6 +174,9 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
     t_start = time.perf_counter()
     report = Path(report)
     check_report_target(report, force)
+    from . import estimator_inputs
+
+    estimator_inputs.configure(estimator_weights)
     chosen = select(variants)
     ab = Ablation(dataset=Path(dataset), variants=[], settings=settings or ScoreSettings(), max_frames=max_frames)
     for v in chosen:
@@ -253,6 +258,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help=f"half width of the depth-edge band in px (default {ScoreSettings.edge_band_px})")
     p.add_argument("--compare-frames", type=_positive, default=3, metavar="K",
                    help="frames per clip and track in the comparison images (default 3)")
+    p.add_argument("--estimator-weights", metavar="W",
+                   help="RGBD-HDR estimator weights (rvr train's estimator.pt) for the estimated_disparity and "
+                        "estimated_hdr rows (default: the shipped weights; without any those rows are unavailable)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -272,7 +280,8 @@ def main(args: argparse.Namespace) -> int:
     try:
         ab = run_ablation(args.dataset, args.out, variants=args.variants, force=args.force, max_frames=args.max_frames,
                           settings=ScoreSettings(edge_band_px=args.edge_band_px), progress=not args.quiet,
-                          compare_frames=args.compare_frames)
+                          compare_frames=args.compare_frames,
+                          estimator_weights=getattr(args, "estimator_weights", None))
     except RvrError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -33,7 +33,9 @@ from rvr_addon.render.aperture import ApertureSpec
 from rvr_addon.render.fast import FastRenderer
 from rvr_addon.render.model import hdr_radiance
 
+from . import estimator_inputs
 from .reader import GTFrame
+from .temporal_inputs import temporal_stage
 
 
 @dataclass
@@ -128,6 +130,7 @@ class Variant:
     label: short title of its comparison panel. description: one line for the README.
     inputs: where disparity and radiance come from. renderer: factory of the renderer.
     requires: importable modules it needs (missing -> unavailable, reported, not faked).
+    check: optional callable giving a further reason it cannot run (e.g. no trained weights), or None.
     """
 
     name: str
@@ -136,13 +139,14 @@ class Variant:
     inputs: InputStage
     renderer: RendererFactory
     requires: tuple[str, ...] = field(default=())
+    check: Callable[[], str | None] | None = None
 
     def unavailable(self) -> str | None:
-        """Why this variant cannot run here (a missing module), or None."""
+        """Why this variant cannot run here (a missing module, a failed ``check``), or None."""
         missing = [m for m in self.requires if importlib.util.find_spec(m) is None]
         if missing:
             return f"needs the Python module(s) {', '.join(missing)} (run ./scripts/setup.sh)"
-        return None
+        return self.check() if self.check is not None else None
 
 
 VARIANTS: tuple[Variant, ...] = (
@@ -158,6 +162,27 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("blender_defocus", "Blender Defocus",
             "Blender's Compositor Defocus node on the clipped 8-bit input with the ground-truth blur radius",
             per_frame(gt_disparity, sdr_radiance), blender_defocus, requires=("bpy",)),
+    # Estimator rows: the trained RGBD-HDR network (ablate --estimator-weights W, or the shipped
+    # weights); its D is used as predicted, in DESIGN units, without a fit to the ground truth.
+    Variant("estimated_disparity", "estimated D (GT HDR)",
+            "ours with the estimator's disparity (as predicted, DESIGN units, no fit) and the ground-truth HDR",
+            per_frame(estimator_inputs.estimated_disparity, gt_hdr_radiance), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
+    Variant("estimated_hdr", "estimated HDR (GT D)",
+            "ours with the ground-truth disparity and the estimator's HDR exponent E",
+            per_frame(gt_disparity, estimator_inputs.estimated_hdr_radiance), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
+    # Temporal filter rows (paper 4.2): per-frame estimates SIMULATED from the GT (no trained
+    # estimator yet); sintel_eval/temporal_inputs.py says how to feed a real cache instead.
+    Variant("temporal_off", "temporal filter off (sim.)",
+            "SIMULATED per-frame estimates (GT D and E with per-frame errors of a single-frame network), unfiltered",
+            temporal_stage(None), ours()),
+    Variant("temporal_causal", "temporal causal (sim.)",
+            "the same SIMULATED estimates through the causal temporal filter (paper: M = 6 past frames)",
+            temporal_stage("causal"), ours()),
+    Variant("temporal_centred", "temporal centred (sim.)",
+            "the same SIMULATED estimates through the centred temporal filter (3 past + 3 future frames)",
+            temporal_stage("centred"), ours()),
 )
 """Every variant, in report order. The first is the reference row of the comparisons."""
 

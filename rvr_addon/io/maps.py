@@ -36,10 +36,16 @@ def _find_channel(channels: dict[str, np.ndarray], name: str) -> np.ndarray | No
     return None
 
 
-def _exr_map(path: Path, kind: str) -> np.ndarray:
+def _exr_map(path: Path, kind: str, prefix: str = "") -> np.ndarray:
     from .exr import read_exr
 
     channels = read_exr(path)
+    if prefix:  # a cache's stabilized channels (S.D, S.E.R/G/B): exact names, no fallback
+        names = (prefix + "D",) if kind == "disparity" else tuple(prefix + c for c in ("E.R", "E.G", "E.B"))
+        if all(n in channels for n in names):
+            return channels[names[0]] if len(names) == 1 else np.stack([channels[n] for n in names], axis=2)
+        raise InputError(f"EXR map '{path}' lacks the stabilized channel(s) {', '.join(names)} that its cache's "
+                         "meta.json records; run `rvr stabilize` on the cache again.")
     if kind == "disparity":
         for name in DISPARITY_CHANNELS:
             found = _find_channel(channels, name)
@@ -101,10 +107,10 @@ def _numpy_map(path: Path, kind: str) -> np.ndarray:
     return array.astype(np.float32)
 
 
-def _read_raw(path: Path, kind: str) -> np.ndarray:
+def _read_raw(path: Path, kind: str, prefix: str = "") -> np.ndarray:
     suffix = path.suffix.lower()
     if suffix == ".exr":
-        array = _exr_map(path, kind)
+        array = _exr_map(path, kind, prefix)
     elif suffix in (".npy", ".npz"):
         array = _numpy_map(path, kind)
     else:
@@ -161,6 +167,7 @@ class MapSequence:
         self.scale = float(scale)
         self.offset = float(offset)
         self.static = static
+        self.prefix = ""  # "S." reads a cache's stabilized channels (see open_map_sequence)
         self._warned_size = False
         self._warned_nonfinite = False
         self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
@@ -212,7 +219,7 @@ class MapSequence:
     def _load(self, path: Path, size: tuple[int, int] | None) -> np.ndarray:
         import cv2
 
-        array = _read_raw(path, self.kind)
+        array = _read_raw(path, self.kind, self.prefix)
         finite = np.isfinite(array)
         if not finite.all():
             if not finite.reshape(array.shape[0], array.shape[1], -1).any(axis=(0, 1)).all():
@@ -265,4 +272,34 @@ def open_map_sequence(path: str | Path, kind: str = "disparity", scale: float = 
         raise InputError(
             f"'{unsupported[0]}' is not a supported map format; use one of {', '.join(MAP_EXTENSIONS)}."
         )
-    return MapSequence(text, files, kind, scale, offset, static=(how == "file"))
+    seq = MapSequence(text, files, kind, scale, offset, static=(how == "file"))
+    if how == "directory":
+        _use_cache_channels(seq, Path(text))
+    return seq
+
+
+def _use_cache_channels(seq: MapSequence, folder: Path) -> None:
+    """A per-clip cache folder (``rvr estimate``): read its stabilized channels when every
+    frame has them (``rvr stabilize``), else the raw per-frame ones; log which."""
+    import json
+
+    meta_path = folder / "meta.json"
+    if not meta_path.is_file():
+        return
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return
+    if not isinstance(meta, dict) or not str(meta.get("format", "")).startswith("rvr-laaf-cache/"):
+        return
+    from ..estimate.cache import stabilized_complete
+
+    name = _KIND_NAMES[seq.kind]
+    if stabilized_complete(meta):
+        seq.prefix = "S."
+        settings = (meta.get("stabilized") or {}).get("settings") or {}
+        log.info("%s: using the temporally stabilized %s channels (%s; rvr stabilize, window %s)", folder, name,
+                 "S.D" if seq.kind == "disparity" else "S.E.R/G/B", settings.get("window", "?"))
+    else:
+        log.info("%s: using the per-frame %s channels (%s); run `rvr stabilize %s` for temporally stable ones",
+                 folder, name, "D" if seq.kind == "disparity" else "E.R/G/B", folder)

@@ -1,0 +1,203 @@
+"""Temporal stabilization (paper 4.2): speed at 640x360 and 1920x1080, and how much it cuts the
+flicker of the rendered video, on SIMULATED per-frame estimates (no trained estimator yet).
+
+    .venv/bin/python bench/temporal_bench.py [--frames 24] [--frames-1080p 12] [--dataset DIR] [--max-frames N]
+
+Speed: :class:`rvr_addon.temporal.filter.TemporalFilter` over a synthetic clip with known
+motion (:func:`rvr_addon.temporal.simulate.synthetic_clip`), frames and estimates in memory:
+everything per frame is timed (DIS flow forward and backward at the flow resolution,
+consistency and photometric checks, flow concatenation, warping the M neighbours, weights,
+the weighted sum); cache I/O and video decoding are not. ``s_per_frame`` is the median
+over the frames with a full window (the first M are cheaper); the mean over all frames and
+the process CPU time are reported too, and ``temporal.load_avg_1min`` records how busy the
+shared machine was.
+
+Flicker (``sim_*`` keys, SIMULATED estimates): the 360p synthetic clip is rendered with our
+renderer (focus on the background's middle, aperture 1) from (a) the ground-truth D and E:
+the reference, (b) simulated per-frame estimates (``sim_off``), (c) the same through the
+causal and (d) the centred filter. ``flicker`` is :func:`sintel_eval.metrics.flicker` (sRGB
+frame-to-frame change beyond the reference's), ``psnr_srgb_db`` the PSNR against the
+reference pooled over the clip, ``flicker_reduction`` = 1 - flicker / flicker(sim_off) and
+``psnr_change_db`` = PSNR - PSNR(sim_off).
+
+``--dataset DIR``: harness clips (sintel_eval/DATASET.md) scored against Cycles with the
+ablation's own rows ``temporal_off / temporal_causal / temporal_centred`` (simulated
+estimates of each clip's ground truth) and ``ours_gt``: keys ``temporal.<clip>.<row>.<metric>``
+(mean over the clip's focus tracks) and the means over clips ``temporal.harness.<row>.<metric>``.
+
+The last line of stdout is one flat JSON object (DESIGN.md keys).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+SIZES = {"360p": (640, 360), "1080p": (1920, 1080)}
+
+
+def speed(width: int, height: int, frames: int, window: str) -> dict[str, float]:
+    """Per-frame wall and CPU time of the filter on a synthetic clip (estimates simulated, untimed)."""
+    from rvr_addon.temporal.filter import TemporalFilter, TemporalSettings
+    from rvr_addon.temporal.simulate import simulate_estimates, synthetic_clip
+
+    clip = list(synthetic_clip(width, height, frames, seed=11))
+    ests = [simulate_estimates(f.disparity, f.exponent, f.index, seed=12) for f in clip]
+    settings = TemporalSettings(window=window)
+    filt = TemporalFilter(settings)
+    walls, cpu0 = [], time.process_time()
+    wall0 = time.perf_counter()
+    for f, (d, e) in zip(clip, ests):
+        t = time.perf_counter()
+        filt.push(f.index, f.image, d, e)
+        walls.append(time.perf_counter() - t)
+    t = time.perf_counter()
+    filt.finish()
+    walls[-1] += time.perf_counter() - t
+    total = time.perf_counter() - wall0
+    steady = walls[settings.m + 1:] or walls
+    return {"s_per_frame": statistics.median(steady), "mean_s_per_frame": total / frames,
+            "cpu_s_per_frame": (time.process_time() - cpu0) / frames}
+
+
+def flicker_study(frames: int) -> dict[str, float]:
+    """Rendered flicker and PSNR against the ground-truth render, 360p synthetic clip (simulated estimates)."""
+    from rvr_addon.color import srgb_to_linear, to_float01
+    from rvr_addon.render.fast import FastRenderer
+    from rvr_addon.render.model import hdr_radiance
+    from rvr_addon.temporal.filter import TemporalSettings, stabilize_stream
+    from rvr_addon.temporal.simulate import simulate_estimates, synthetic_clip
+    from sintel_eval import metrics as m
+
+    width, height = SIZES["360p"]
+    clip = list(synthetic_clip(width, height, frames, seed=21))
+    ests = [simulate_estimates(f.disparity, f.exponent, f.index, seed=22) for f in clip]
+    rows = {"sim_off": ests}
+    for window in ("causal", "centred"):
+        out = list(stabilize_stream((f.image for f in clip), iter(ests), TemporalSettings(window=window)))
+        rows[f"sim_{window}"] = [(d, e) for _, d, e, _ in out]
+    renderer = FastRenderer()
+    focus, aperture = float(np.median(clip[0].disparity)), 1.0
+
+    def render(f, d, e):
+        rad = np.asarray(hdr_radiance(srgb_to_linear(to_float01(f.image)), e), np.float32)
+        return m.display_srgb(renderer.render_linear(rad, d, focus, aperture))
+
+    ref = [render(f, f.disparity, f.exponent) for f in clip]
+    result: dict[str, float] = {}
+    for name, est in rows.items():
+        sse = n = 0.0
+        flick, prev, d_err, e_err = [], None, [], []
+        for f, r, (d, e) in zip(clip, ref, est):
+            out = render(f, d, e)
+            s, c = m.squared_error_sum(out, r)
+            sse, n = sse + s, n + c
+            if prev is not None:
+                flick.append(m.flicker(prev[0], out, prev[1], r))
+            prev = (out, r)
+            d_err.append(float(np.sqrt(np.mean((d - f.disparity) ** 2))))
+            hl = f.exponent.max(axis=2) > 0
+            if hl.any():
+                e_err.append(float(np.mean(np.abs(e - f.exponent)[hl])))
+        key = f"temporal.{name}.360p"
+        result[f"{key}.flicker"] = float(np.mean(flick))
+        result[f"{key}.psnr_srgb_db"] = m.psnr_from_mse(sse / n)
+        result[f"{key}.d_rmse_px"] = float(np.mean(d_err))
+        result[f"{key}.e_highlight_mae"] = float(np.mean(e_err)) if e_err else float("nan")
+    base_f, base_p = result["temporal.sim_off.360p.flicker"], result["temporal.sim_off.360p.psnr_srgb_db"]
+    for w in ("causal", "centred"):
+        key = f"temporal.sim_{w}.360p"
+        result[f"{key}.flicker_reduction"] = 1.0 - result[f"{key}.flicker"] / base_f
+        result[f"{key}.psnr_change_db"] = result[f"{key}.psnr_srgb_db"] - base_p
+    return result
+
+
+def dataset_study(dataset: Path, max_frames: int | None) -> dict[str, float]:
+    """The ablation's temporal rows on harness clips, scored against Cycles (simulated estimates)."""
+    from sintel_eval.ablate import run_variant
+    from sintel_eval.reader import ClipReader, find_clips
+    from sintel_eval.scoring import ScoreSettings, aggregate
+    from sintel_eval.variants import select
+
+    rows = select(["ours_gt", "temporal_off", "temporal_causal", "temporal_centred"])
+    result: dict[str, float] = {}
+    per_row: dict[str, list[dict[str, float]]] = {v.name: [] for v in rows}
+    with tempfile.TemporaryDirectory() as tmp:
+        for folder in find_clips(dataset):
+            reader = ClipReader(folder)
+            tracks = reader.tracks
+            try:
+                reader.check_complete(tracks, max_frames)
+            except Exception as ex:  # noqa: BLE001 - an incomplete clip is reported, not fatal
+                print(f"skipping {folder.name}: {ex}", file=sys.stderr)
+                continue
+            for v in rows:
+                runs = [run_variant(reader, track, v, Path(tmp) / reader.name / track / v.name, ScoreSettings(),
+                                    max_frames).metrics for track in tracks]
+                figures = aggregate(runs)
+                per_row[v.name].append(figures)
+                for metric in ("flicker", "psnr_srgb_db", "splotchiness_px", "bokeh_recall"):
+                    result[f"temporal.{reader.name}.{v.name}.{metric}"] = figures[metric]
+                print(f"{reader.name} {v.name}: flicker {figures['flicker']:.5f} psnr {figures['psnr_srgb_db']:.2f} dB",
+                      file=sys.stderr)
+    for name, figs in per_row.items():
+        if figs:
+            agg = aggregate(figs)
+            for metric in ("flicker", "psnr_srgb_db"):
+                result[f"temporal.harness.{name}.{metric}"] = agg[metric]
+    if per_row["temporal_off"]:
+        off_f = result["temporal.harness.temporal_off.flicker"]
+        off_p = result["temporal.harness.temporal_off.psnr_srgb_db"]
+        floor = result.get("temporal.harness.ours_gt.flicker", 0.0)
+        for w in ("causal", "centred"):
+            f = result[f"temporal.harness.temporal_{w}.flicker"]
+            result[f"temporal.harness.temporal_{w}.flicker_reduction"] = 1.0 - f / off_f
+            result[f"temporal.harness.temporal_{w}.excess_flicker_reduction"] = 1.0 - (f - floor) / (off_f - floor)
+            result[f"temporal.harness.temporal_{w}.psnr_change_db"] = (
+                result[f"temporal.harness.temporal_{w}.psnr_srgb_db"] - off_p)
+        result["temporal.harness.clips"] = float(len(per_row["temporal_off"]))
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=24, help="frames of the 360p synthetic clip (default 24)")
+    parser.add_argument("--frames-1080p", type=int, default=12, help="frames of the 1080p clip (default 12)")
+    parser.add_argument("--dataset", type=Path, help="harness clips to score against Cycles (sintel_eval/DATASET.md)")
+    parser.add_argument("--max-frames", type=int, help="with --dataset: the first N frames of each clip")
+    parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
+    args = parser.parse_args()
+
+    import cv2
+
+    result: dict[str, float] = {"temporal.cv2_threads": float(cv2.getNumThreads())}
+    if not args.no_speed:
+        for size, (w, h) in SIZES.items():
+            n = args.frames if size == "360p" else args.frames_1080p
+            for window in ("causal", "centred"):
+                r = speed(w, h, n, window)
+                prefix = f"temporal.{size}" if window == "causal" else f"temporal.centred.{size}"
+                for k, v in r.items():
+                    result[f"{prefix}.{k}"] = v
+                print(f"{window} {size}: {r['s_per_frame']:.3f} s/frame (median, full window), "
+                      f"{r['mean_s_per_frame']:.3f} mean, {r['cpu_s_per_frame']:.3f} CPU s/frame", file=sys.stderr)
+    result.update(flicker_study(args.frames))
+    if args.dataset is not None:
+        result.update(dataset_study(args.dataset, args.max_frames))
+    result["temporal.load_avg_1min"] = float(os.getloadavg()[0])
+    print(json.dumps({k: (round(v, 6) if isinstance(v, float) else v) for k, v in result.items()
+                      if isinstance(v, (int, float)) and np.isfinite(v)}))
+
+
+if __name__ == "__main__":
+    main()
