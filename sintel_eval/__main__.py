@@ -10,25 +10,7 @@ import argparse
 import sys
 import time
 
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a size: write WxH, e.g. 384x216") from None
-    if w < 16 or h < 9:
-        raise argparse.ArgumentTypeError(f"size {w}x{h} is too small: use at least 16x9")
-    return w, h
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
+from .generate_cli import _positive, _size
 
 
 def build_parser() -> argparse.ArgumentParser:
