@@ -34,7 +34,7 @@ from .scene_plan import FOCAL_MM, SENSOR_WIDTH_MM
 from .scripts_events import SCRIPTS, check_script
 
 FORMAT = "rvr-laaf-harness/1"
-HARNESS_VERSION = 1  # bump when the scene generator changes what a seed renders
+HARNESS_VERSION = 2  # bump when the scene generator changes what a seed renders (2: start_moving rule -> rack track)
 STYLES = ("auto", "procedural", "photo")
 LIGHTING_CHOICES = ("auto", "classic", "day", "dim", "night")
 logger = logging.getLogger(__name__)

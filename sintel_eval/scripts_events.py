@@ -20,7 +20,8 @@ from .scene_plan import (NAMES, WALK_M_PER_FRAME, CameraPath, Character, Motion,
                          half_width, make_camera, make_set, new_character)
 
 SCRIPTS = ("random", "enter", "start-moving", "conversation")
-ENTER_VISIBLE = 0.5  # a started movement counts when this fraction of the subject's box is in frame
+START_VISIBLE = 0.2  # a started movement counts when the face and this share of the subject's box are in frame
+# (standing figures at 4-6 m are cut at the knees by the 16:9 frame: ~45% of their box is in view)
 FACE_LEAD = 0.1  # m: the focus point (face) leads a walking body's root by this much
 HFOV = math.atan(half_width(1.0))
 
@@ -185,7 +186,7 @@ def detect_events(plan: ScenePlan, records: dict[str, list[SubjectFrame]], turns
                 break
         if char.motion.kind == "start_walk":
             k = next((k for k in range(2, plan.frames + 1) if char.motion.moving(k)), None)
-            if k is not None and recs[k - 1].visible >= ENTER_VISIBLE:
+            if k is not None and recs[k - 1].face_in_frame and recs[k - 1].visible >= START_VISIBLE:
                 events.append(event("start_moving", char.name, k, {"speed_m_per_frame": char.motion.speed}))
     for turn in turns or []:
         if 1 <= turn.start_frame <= plan.frames:

@@ -154,3 +154,23 @@ def test_voice_activity_and_mouth_on_a_synthetic_track():
     mouth = mouth_opening(track, 48, 24)
     assert mouth.shape == (48,) and mouth.max() == pytest.approx(1.0)
     assert mouth[int(1.0 * 24)] == 0.0 and mouth[int(1.6 * 24)] > 0.5  # closed in the pause, open in speech
+
+
+def test_start_moving_event_needs_the_face_in_frame_not_half_the_body():
+    """A standing figure at 4-6 m shows ~45% of its box (legs cut by the frame): its start of
+    movement is still an event; with its face out of frame it is not."""
+    from sintel_eval.scripts_events import SubjectFrame, detect_events, make_plan
+
+    plan = make_plan(1003, "start-moving", 48, 24)
+    walker = next(c for c in plan.characters if c.motion.kind == "start_walk")
+    start = next(k for k in range(2, 49) if walker.motion.moving(k))
+
+    def records(visible: float, face: bool) -> dict:
+        rec = SubjectFrame(box=[10.0, 10.0, 20.0, 40.0], visible=visible, point=[20.0, 15.0], depth_m=5.0,
+                           disparity=1.0, face_in_frame=face)
+        return {c.name: [rec] * plan.frames for c in plan.characters}
+
+    events = detect_events(plan, records(0.45, True))
+    assert [(e["type"], e["subject"], e["frame"]) for e in events] == [("start_moving", walker.name, start)]
+    assert detect_events(plan, records(0.45, False)) == []
+    assert detect_events(plan, records(0.1, True)) == []
