@@ -387,7 +387,8 @@ def _laplacian_energy_by_band(img_lin: np.ndarray, radius: np.ndarray, edges) ->
     return [float(np.mean(lap[(radius >= a) & (radius < b)] ** 2)) for a, b in zip(edges[:-1], edges[1:])]
 
 
-def _demo(w: int, h: int, max_r: float, repeats: int) -> None:
+def _demo(w: int, h: int, max_r: float, repeats: int) -> float:
+    """Run the node on a radius ramp, print what it does; returns seconds per frame."""
     img = _make_test_image(w, h)
     ramp = np.tile(np.linspace(0.0, max_r, w, dtype=np.float32), (h, 1))
     sec, out = blender_defocus(img, ramp, max_radius_px=max_r, repeats=repeats)
@@ -404,14 +405,17 @@ def _demo(w: int, h: int, max_r: float, repeats: int) -> None:
     print(f"  blur increases with radius (energy ratio monotonically decreasing): {mono}")
     zero = ramp < 0.5
     print(f"  max |out - in| where radius < 0.5 px: {float(np.abs(out - lin)[zero].max()):.2e}")
+    return sec
 
 
 if __name__ == "__main__":
+    import json
     import sys
 
     print("Footprint of Blender's Defocus (no Z-buffer, z_scale=1) for constant radius r, blur_max=32:")
     for r, req, ext in _footprint(32.0, [0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0, 11.0, 16.0, 24.0, 32.0]):
         print(f"  r={r:5.2f} px -> area-equivalent radius {req:6.3f} px, support half-width {ext:4.0f} px")
-    _demo(640, 360, 11.0, repeats=3)
+    figures = {"blender_defocus.ramp.360p.s_per_frame": round(_demo(640, 360, 11.0, repeats=3), 5)}
     if "--no-1080p" not in sys.argv:
-        _demo(1920, 1080, 32.0, repeats=1)
+        figures["blender_defocus.ramp.1080p.s_per_frame"] = round(_demo(1920, 1080, 32.0, repeats=1), 5)
+    print(json.dumps(figures))  # last line: flat JSON (DESIGN.md "Benchmarks and evaluation output")
