@@ -7,7 +7,7 @@ description; no bpy), scripts_events (scripts, events, focus tracks; no bpy), sp
 (espeak-ng, voice activity, mouths; no bpy), look (seeded style, lighting, figures and photo
 texture choices; no bpy), textures (real-image texture library and crops; no bpy), bpy_util /
 materials / photo_materials / figures / scene_builder (Blender objects), passes (Cycles
-renders), dataset (the clip folder, resume), generate_cli (CLI).
+renders), dataset (the clip folder, resume), generate_cli (CLI), cli_args (argparse value types).
 """
 from __future__ import annotations
 

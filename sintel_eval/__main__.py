@@ -10,7 +10,7 @@ import argparse
 import sys
 import time
 
-from .generate_cli import _positive, _size
+from .cli_args import positive_int, size_arg
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -21,9 +21,9 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Render the procedural demo scene: 8-bit sRGB frames, linear HDR "
                                       "EXRs, disparity (DESIGN units) and meta.json.")
     demo.add_argument("-o", "--out", required=True, metavar="DIR", help="output folder (created if missing)")
-    demo.add_argument("--frames", type=_positive, default=24, metavar="N", help="number of frames (default 24)")
-    demo.add_argument("--size", type=_size, default=(384, 216), metavar="WxH", help="resolution (default 384x216)")
-    demo.add_argument("--samples", type=_positive, default=16, metavar="S", help="Cycles samples (default 16)")
+    demo.add_argument("--frames", type=positive_int, default=24, metavar="N", help="number of frames (default 24)")
+    demo.add_argument("--size", type=size_arg, default=(384, 216), metavar="WxH", help="resolution (default 384x216)")
+    demo.add_argument("--samples", type=positive_int, default=16, metavar="S", help="Cycles samples (default 16)")
     demo.add_argument("--seed", type=int, default=0, metavar="K", help="scene seed (default 0)")
     demo.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
     demo.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

@@ -35,6 +35,7 @@ from rvr_addon.color import to_uint8
 from rvr_addon.errors import InputError, OutputError
 from rvr_addon.io.paths import temp_sibling
 
+from .cli_args import positive_int
 from .metrics import display_srgb
 from .reader import ClipReader, find_clips
 from .scoring import RunScorer, ScoreSettings
@@ -232,16 +233,6 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
 # Command line
 
 
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
-
-
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``ablate`` sub-command to an argparse sub-parser set."""
     names = ", ".join(v.name for v in VARIANTS)
@@ -253,10 +244,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("-o", "--out", required=True, metavar="REPORT", help="report folder to write")
     p.add_argument("--variants", action="append", metavar="A,B", help=f"variants to run (default: all): {names}")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
-    p.add_argument("--max-frames", type=_positive, metavar="N", help="evaluate only the first N frames of each clip")
+    p.add_argument("--max-frames", type=positive_int, metavar="N", help="evaluate only the first N frames of each clip")
     p.add_argument("--edge-band-px", type=int, default=ScoreSettings.edge_band_px, metavar="PX",
                    help=f"half width of the depth-edge band in px (default {ScoreSettings.edge_band_px})")
-    p.add_argument("--compare-frames", type=_positive, default=3, metavar="K",
+    p.add_argument("--compare-frames", type=positive_int, default=3, metavar="K",
                    help="frames per clip and track in the comparison images (default 3)")
     p.add_argument("--estimator-weights", metavar="W",
                    help="RGBD-HDR estimator weights (rvr train's estimator.pt) for the estimated_disparity and "

@@ -12,37 +12,9 @@ import argparse
 import logging
 import sys
 
+from .cli_args import non_negative_int, positive_int, size_arg
+
 DEFAULT_STYLE = "auto"  # photo when a texture source is found (sintel_eval/DATASET.md "Looks")
-
-
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not a size: write WxH, e.g. 320x180") from None
-    if w < 16 or h < 9:
-        raise argparse.ArgumentTypeError(f"size {w}x{h} is too small: use at least 16x9")
-    return w, h
-
-
-def _positive(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{value} must be at least 1")
-    return value
-
-
-def _non_negative(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"'{text}' is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"{value} must be 0 (none) or more")
-    return value
 
 
 def _f_numbers(text: str) -> tuple[float, float, float]:
@@ -66,22 +38,22 @@ def add_parser(sub) -> argparse.ArgumentParser:
                                      "resumes an interrupted run.")
     gen.add_argument("-o", "--out", required=True, metavar="DIR", help="clip folder (created if missing)")
     gen.add_argument("--seed", required=True, metavar="K", help="scene seed: a whole number (decimal or 0x-hex)")
-    gen.add_argument("--frames", type=_positive, default=48, metavar="N", help="number of frames (default 48)")
-    gen.add_argument("--size", type=_size, default=(320, 180), metavar="WxH", help="resolution (default 320x180)")
+    gen.add_argument("--frames", type=positive_int, default=48, metavar="N", help="number of frames (default 48)")
+    gen.add_argument("--size", type=size_arg, default=(320, 180), metavar="WxH", help="resolution (default 320x180)")
     gen.add_argument("--script", default="random", metavar="NAME",
                      help="scene script: random, enter, start-moving or conversation (default random)")
-    gen.add_argument("--samples", type=_positive, default=16, metavar="S",
+    gen.add_argument("--samples", type=positive_int, default=16, metavar="S",
                      help="Cycles samples of the pinhole (input/GT) pass (default 16)")
-    gen.add_argument("--dof-samples", type=_positive, default=24, metavar="S",
+    gen.add_argument("--dof-samples", type=positive_int, default=24, metavar="S",
                      help="Cycles samples of the depth-of-field passes (default 24)")
-    gen.add_argument("--train-samples", type=_positive, default=16, metavar="S",
+    gen.add_argument("--train-samples", type=positive_int, default=16, metavar="S",
                      help="Cycles samples of the mid/small apertures of the training triplets (default 16)")
     gen.add_argument("--f-numbers", type=_f_numbers, default=(1.0, 2.8, 8.0), metavar="L,M,S",
                      help="f-numbers: LARGE aperture of the focus tracks, then MID and SMALL of the aperture "
                           "triplets (default 1.0,2.8,8.0; aperture scale 1 = f/1.0)")
-    gen.add_argument("--train-every", type=_non_negative, default=4, metavar="N",
+    gen.add_argument("--train-every", type=non_negative_int, default=4, metavar="N",
                      help="training pairs/triplets on frames 1, 1+N, ... (0 = none; default 4)")
-    gen.add_argument("--pull-frames", type=_positive, default=10, metavar="N", help="rack pull length (default 10)")
+    gen.add_argument("--pull-frames", type=positive_int, default=10, metavar="N", help="rack pull length (default 10)")
     gen.add_argument("--style", choices=("auto", "procedural", "photo"), default=DEFAULT_STYLE,
                      help="look of the scene: photo (photo textures cut from real images, people-like figures, "
                           "varied lighting), procedural (the original procedural materials and figures), or auto: "
