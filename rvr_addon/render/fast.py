@@ -136,13 +136,14 @@ class FastRenderer:
         # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
         *acc_rgb, cov = cv2.split(acc)
         weight = cv2.min(cov, 1.0)
-        fill = fill_level1_cv(channels, weight, u)
+        fill = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in channels], weight, u)  # model.fill_encode
         scale = cv2.divide(1.0, cv2.max(cov, 1.0))
         rest = cv2.subtract(1.0, weight)
         size = (2 * fill.shape[1], 2 * fill.shape[0])
-        out = [cv2.add(cv2.multiply(a, scale),
-                       cv2.multiply(cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w], rest))
-               for a, f in zip(acc_rgb, cv2.split(fill))]
+        out = []
+        for a, f in zip(acc_rgb, cv2.split(fill)):
+            f = np.ascontiguousarray(cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w])
+            out.append(cv2.add(cv2.multiply(a, scale), cv2.multiply(cv2.multiply(f, f), rest)))  # model.fill_decode
         return cv2.merge(out)
 
     def render_srgb(
@@ -335,13 +336,15 @@ def fill_cv(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray) -> np.nda
     """:func:`.model.push_pull_fill` with OpenCV (same values): (H, W, 3) float32 colour,
     (H, W) weight in [0, 1] and depth (layer coordinate) -> (H, W, 3) fill."""
     h, w = weight.shape
-    f = fill_level1_cv(cv2.split(colour), weight, depth)
-    return np.ascontiguousarray(cv2.resize(f, (2 * f.shape[1], 2 * f.shape[0]), interpolation=cv2.INTER_LINEAR)[:h, :w])
+    f = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in cv2.split(colour)], weight, depth)  # model.fill_encode
+    f = np.ascontiguousarray(cv2.resize(f, (2 * f.shape[1], 2 * f.shape[0]), interpolation=cv2.INTER_LINEAR)[:h, :w])
+    return cv2.multiply(f, f)  # model.fill_decode
 
 
 def fill_level1_cv(channels: list, weight: np.ndarray, depth: np.ndarray) -> np.ndarray:
-    """Level 1 (half resolution, (ceil(H/2), ceil(W/2), 3)) of the fill of
-    :func:`.model.push_pull_fill`, whose bilinear 2x upsampling cropped to (H, W) is the fill.
+    """Level 1 (half resolution, (ceil(H/2), ceil(W/2), 3)) of the push-pull of
+    :func:`.model.push_pull_fill`, in the colour domain given (the callers pass
+    ``model.fill_encode`` of the radiance, upsample bilinearly 2x, crop to (H, W) and decode).
 
     channels: the three (H, W) float32 colour planes; weight, depth: (H, W) float32. Depths
     are handled as ``y = kappa * z`` (a depth factor is then one exp of ``min(y - y_ref +

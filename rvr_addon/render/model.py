@@ -44,8 +44,14 @@ The model, for every renderer (fast tiles, torch, brute-force reference):
    block and between levels, a sample more than FILL_DEPTH_TOLERANCE steps in front of the
    farthest one fades by ``exp(-FILL_DEPTH_SHARPNESS)`` per step (an occluder is not the
    background it hides), weights are averaged (not saturated) up the pyramid, and the fill is
-   the half-resolution level upsampled. So a hole takes the colour of the covered background
-   around it, the rim of a blurred foreground mixes its colour with that of the real
+   the half-resolution level upsampled. The pyramid averages ``sqrt(L)`` and the fill is the
+   square of the result (a power mean of order FILL_POWER = 1/2, :func:`fill_encode` /
+   :func:`fill_decode`): the hidden background is most often the dark surface around a small
+   highlight, not the highlight, and a linear mean let one HDR emitter beside a blurred leaf
+   turn the whole hidden area white (on the harness clips the power mean gains 0.3-0.9 dB
+   against Cycles, most in the edge band; it also lifted occlusion-aware above the naive sum
+   in the band on the one clip where it was behind). So a hole takes the colour of the
+   covered background around it, the rim of a blurred foreground mixes its colour with that of the real
    neighbouring background (no dark or bright halo; normalising by the coverage instead gave
    the rim the foreground's full colour and filled a small highlight's hole with the highlight
    itself), and an HDR highlight keeps its energy. ``cov > 1`` only where surfaces less than S
@@ -84,6 +90,8 @@ EXP_FLOOR = -60.0
 which keeps every weight sum positive in float32."""
 WEIGHT_EPS = 1e-12
 """Weight sums below this count as empty (colour 0)."""
+FILL_POWER = 0.5
+"""Order of the power mean the fill takes of the radiance (step 5): it averages L**FILL_POWER."""
 
 
 @dataclass(frozen=True)
@@ -224,6 +232,19 @@ def depth_factor(dz: Any, kappa: float = FILL_DEPTH_SHARPNESS, tolerance: float 
     return (kappa * (dz + tolerance).clamp(max=0.0)).clamp(min=EXP_FLOOR).exp()
 
 
+def fill_encode(colour: Any) -> Any:
+    """Radiance -> the domain the fill averages in: ``max(L, 0) ** FILL_POWER`` (numpy or torch;
+    torch clamps at 1e-10 so the gradient stays finite)."""
+    if isinstance(colour, np.ndarray):
+        return np.sqrt(np.maximum(colour, 0.0))
+    return colour.clamp(min=1e-10).sqrt()
+
+
+def fill_decode(encoded: Any) -> Any:
+    """Inverse of :func:`fill_encode` on the averaged values: ``f ** (1 / FILL_POWER)``."""
+    return encoded * encoded
+
+
 def push_pull_fill(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray,
                    kappa: float = FILL_DEPTH_SHARPNESS, tolerance: float = FILL_DEPTH_TOLERANCE) -> np.ndarray:
     """The fill of model step 5, plain numpy: a depth-aware push-pull estimate at half
@@ -244,10 +265,12 @@ def push_pull_fill(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray,
     and ``b = (1 - w) depth_factor(z_up - m)``, ``m = max(z, z_up)`` (z_up alone where w = 0).
     The fill is level 1's fill upsampled to full size: a pixel's own sample enters only
     through its 2x2 block, so a hole takes the colour of the covered background around it.
+    Colours are averaged as ``fill_encode(colour)`` and the upsampled result is decoded by
+    :func:`fill_decode` (a power mean, see the module's step 5).
     """
-    f, _ = push_pull_levels(colour, weight, depth, kappa, tolerance, down_to=1)
+    f, _ = push_pull_levels(fill_encode(colour), weight, depth, kappa, tolerance, down_to=1)
     h, w = weight.shape
-    return upsample2(f)[:h, :w].astype(colour.dtype, copy=False)
+    return fill_decode(upsample2(f)[:h, :w]).astype(colour.dtype, copy=False)
 
 
 def _pull(c: np.ndarray, w: np.ndarray, z: np.ndarray, kappa: float,

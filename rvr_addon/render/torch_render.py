@@ -19,6 +19,8 @@ from .model import (
     WEIGHT_EPS,
     LayerPlan,
     depth_factor,
+    fill_decode,
+    fill_encode,
     matte_unnormalised,
     plan_layers,
 )
@@ -148,7 +150,7 @@ def push_pull_fill_torch(colour: torch.Tensor, weight: torch.Tensor, depth: torc
     colour: (B, C, H, W) straight colour; weight: (B, 1, H, W) in [0, 1]; depth: (B, 1, H, W)
     layer coordinate. Returns (B, C, H, W).
     """
-    levels = [(colour, weight, depth)]
+    levels = [(fill_encode(colour), weight, depth)]
     while len(levels) < 2 or levels[-1][1].shape[-2:] != (1, 1):
         levels.append(_pull(*levels[-1]))
     f, g = levels[-1][0], levels[-1][2]
@@ -161,4 +163,4 @@ def push_pull_fill_torch(colour: torch.Tensor, weight: torch.Tensor, depth: torc
         b = (1.0 - w) * depth_factor(gu - m)
         inv = 1.0 / (a + b)
         f, g = (a * c + b * fu) * inv, (a * z + b * gu) * inv
-    return _up(f, *weight.shape[-2:])
+    return fill_decode(_up(f, *weight.shape[-2:]))
