@@ -33,3 +33,14 @@ def positive_int(text: str) -> int:
 def non_negative_int(text: str) -> int:
     """A whole number >= 0 (0 = none)."""
     return _int_at_least(text, 0, "must be 0 (none) or more")
+
+
+def float_range(text: str) -> tuple[float, float]:
+    """``MIN,MAX`` -> (min, max) floats with min <= max."""
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a range: write MIN,MAX, e.g. -12,0") from None
+    if lo > hi:
+        raise argparse.ArgumentTypeError(f"range {text}: MIN must not exceed MAX")
+    return lo, hi

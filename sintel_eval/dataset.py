@@ -30,7 +30,7 @@ from rvr_addon.io.exr import write_exr
 from rvr_addon.pipeline import exponent_from_radiance
 
 from .camera_math import Lens, affine_between, affine_to_blur
-from .scene_plan import FOCAL_MM, SENSOR_WIDTH_MM
+from .scene_plan import DEFAULT_TILT_DEG, FOCAL_MM, SENSOR_WIDTH_MM
 from .scripts_events import SCRIPTS, check_script
 
 FORMAT = "rvr-laaf-harness/1"
@@ -93,6 +93,7 @@ class GenerateConfig:
     lighting: str = "auto"
     textures: str | None = None
     texture_cache: str | None = None
+    tilt_deg: tuple[float, float] = DEFAULT_TILT_DEG
 
     def validated(self) -> "GenerateConfig":
         """A normalised copy; raises InputError naming the setting and the fix."""
@@ -126,7 +127,11 @@ class GenerateConfig:
         lighting = str(self.lighting).strip().lower()
         if lighting not in LIGHTING_CHOICES:
             raise InputError(f"--lighting '{self.lighting}': use one of {', '.join(LIGHTING_CHOICES)}")
-        return replace(self, seed=seed, style=style, lighting=lighting,
+        tilt = tuple(float(v) for v in self.tilt_deg)
+        if len(tilt) != 2 or not all(math.isfinite(v) for v in tilt) or not -30.0 <= tilt[0] <= tilt[1] <= 30.0:
+            raise InputError(f"--tilt {self.tilt_deg}: give MIN,MAX camera tilt in degrees (positive = up), "
+                             "MIN <= MAX, within -30..30, e.g. -12,0")
+        return replace(self, seed=seed, style=style, lighting=lighting, tilt_deg=tilt,
                        textures=str(self.textures) if self.textures else None,
                        texture_cache=str(self.texture_cache) if self.texture_cache else None,
                        script=script, frames=int(self.frames), width=int(self.width),
@@ -138,6 +143,7 @@ class GenerateConfig:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["f_numbers"] = list(self.f_numbers)
+        d["tilt_deg"] = list(self.tilt_deg)
         return d
 
     @property
@@ -154,6 +160,8 @@ class GenerateConfig:
         config = self.to_dict()
         for key in ("style", "lighting", "textures", "texture_cache"):
             config.pop(key)
+        if tuple(self.tilt_deg) == DEFAULT_TILT_DEG:
+            config.pop("tilt_deg")  # the hash of a default clip is the one of earlier versions
         blob = {"config": config, "format": FORMAT, "harness": HARNESS_VERSION, "blender": blender_version}
         if not self.original_look:
             blob["look"] = {"style": self.style, "lighting": self.lighting, "version": LOOK_VERSION,
@@ -317,7 +325,7 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
     # -- the plan and the speech first: their errors (no espeak-ng, clip too short for two
     # turns) come before the folder is touched
     plan = make_plan(cfg.seed, cfg.script, cfg.frames, cfg.fps, style=cfg.style, lighting=cfg.lighting,
-                     library=library)
+                     library=library, tilt_deg=cfg.tilt_deg)
     texture_files = cut_textures(plan, library)
     conversation = None
     if cfg.script == "conversation":

@@ -4,7 +4,7 @@
                                    [--dof-samples S] [--train-samples S] [--f-numbers L,M,S] [--train-every N]
                                    [--pull-frames N] [--style auto|procedural|photo]
                                    [--lighting auto|classic|day|dim|night] [--textures DIR]
-                                   [--texture-cache DIR] [--no-denoise] [--force] [-q] -o DIR
+                                   [--texture-cache DIR] [--tilt MIN,MAX] [--no-denoise] [--force] [-q] -o DIR
 """
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import argparse
 import logging
 import sys
 
-from .cli_args import non_negative_int, positive_int, size_arg
+from .cli_args import float_range, non_negative_int, positive_int, size_arg
 
 DEFAULT_STYLE = "auto"  # photo when a texture source is found (sintel_eval/DATASET.md "Looks")
 
@@ -70,6 +70,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     gen.add_argument("--texture-cache", metavar="DIR", default=None,
                      help="where extracted clip frames and texture crops go (default $RVR_TEXTURE_CACHE or "
                           "~/.cache/rvr-laaf/textures)")
+    gen.add_argument("--tilt", type=float_range, default=None, metavar="MIN,MAX",
+                     help="range of the seeded camera tilt in degrees, positive = up (default 0.5,2.5: the "
+                          "near subject's head in frame); e.g. -14,0 shows the floor receding, as in much real "
+                          "footage (the estimator's training data)")
     gen.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
     gen.add_argument("--force", action="store_true",
                      help="regenerate from scratch (removes only the harness' own files in DIR)")
@@ -96,7 +100,8 @@ def main(args: argparse.Namespace) -> int:
                              train_samples=args.train_samples,
                              f_numbers=args.f_numbers, train_every=args.train_every, pull_frames=args.pull_frames,
                              denoise=not args.no_denoise, style=args.style, lighting=args.lighting,
-                             textures=args.textures, texture_cache=args.texture_cache).validated()
+                             textures=args.textures, texture_cache=args.texture_cache,
+                             **({"tilt_deg": args.tilt} if args.tilt else {})).validated()
         result = generate(args.out, cfg, force=args.force, progress=not args.quiet)
     except RvrError as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -258,15 +258,22 @@ def make_set(rng: np.random.Generator) -> SetPlan:
     )
 
 
-def make_camera(rng: np.random.Generator, frames: int) -> CameraPath:
-    """A slow pan (2-5 degrees over the clip, either way), a dolly (0.2-0.6 m in) and a slight
-    upward tilt (0.5-2.5 degrees: the near subject's head stays in frame)."""
+DEFAULT_TILT_DEG = (0.5, 2.5)
+"""Range of the camera tilt in degrees (positive = up): the near subject's head stays in frame."""
+
+
+def make_camera(rng: np.random.Generator, frames: int,
+                tilt_deg: tuple[float, float] = DEFAULT_TILT_DEG) -> CameraPath:
+    """A slow pan (2-5 degrees over the clip, either way), a dolly (0.2-0.6 m in) and a tilt
+    drawn from ``tilt_deg`` (degrees, positive = up; default a slight upward tilt, 0.5-2.5: the
+    near subject's head stays in frame; a downward range shows the floor receding, e.g. for
+    the estimator's training data)."""
     pan = math.radians(float(rng.uniform(2.0, 5.0))) * float(rng.choice([-1.0, 1.0]))
     yaw0 = math.radians(float(rng.uniform(-2.0, 2.0)))
     scale = min(frames / 48.0, 2.0)  # longer clips move further (bounded)
     return CameraPath(start=(float(rng.uniform(-0.1, 0.1)), 0.0, CAMERA_HEIGHT), yaw_start=yaw0,
                       yaw_end=yaw0 + pan * scale, dolly_m=float(rng.uniform(0.2, 0.6)) * scale,
-                      tilt=math.radians(float(rng.uniform(0.5, 2.5))), frames=frames)
+                      tilt=math.radians(float(rng.uniform(*tilt_deg))), frames=frames)
 
 
 def new_character(rng: np.random.Generator, name: str, index: int, motion: Motion, facing: float = 0.0,

@@ -16,7 +16,7 @@ import numpy as np
 from rvr_addon.errors import InputError
 
 from .camera_math import Lens, smoothstep
-from .scene_plan import (NAMES, WALK_M_PER_FRAME, CameraPath, Character, Motion, Mover, ScenePlan, edge_x,
+from .scene_plan import (DEFAULT_TILT_DEG, NAMES, WALK_M_PER_FRAME, CameraPath, Character, Motion, Mover, ScenePlan, edge_x,
                          half_width, make_camera, make_set, new_character)
 
 SCRIPTS = ("random", "enter", "start-moving", "conversation")
@@ -42,7 +42,8 @@ def check_script(script: str) -> str:
 
 
 def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int | None = None, *,
-              style: str = "procedural", lighting: str = "auto", library=None) -> ScenePlan:
+              style: str = "procedural", lighting: str = "auto", library=None,
+              tilt_deg: tuple[float, float] = DEFAULT_TILT_DEG) -> ScenePlan:
     """The seeded scene of ``script`` for a clip of ``frames`` frames (see the module docstring).
 
     style, lighting, library: the look (:func:`sintel_eval.look.make_look`), drawn from its own
@@ -50,7 +51,7 @@ def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int 
     original procedural look (``plan.look is None``)."""
     script = check_script(script)
     rng = np.random.default_rng([int(seed), SCRIPTS.index(script)])
-    camera = make_camera(rng, frames)
+    camera = make_camera(rng, frames, tilt_deg)
     set_plan = make_set(rng)
     names = list(rng.permutation(NAMES))
     side_a = -1.0 if camera.yaw_end > camera.yaw_start else 1.0  # the pan brings A towards the centre

@@ -127,7 +127,8 @@ def test_kelvin_colours():
 def test_config_hash_of_the_original_look_is_unchanged():
     """Clips generated before the looks existed keep their hash (they resume, not regenerate)."""
     cfg = GenerateConfig(seed=7).validated()
-    legacy = {k: v for k, v in cfg.to_dict().items() if k not in ("style", "lighting", "textures", "texture_cache")}
+    legacy = {k: v for k, v in cfg.to_dict().items()
+              if k not in ("style", "lighting", "textures", "texture_cache", "tilt_deg")}
     blob = json.dumps({"config": legacy, "format": FORMAT, "harness": HARNESS_VERSION, "blender": "5.0.1"},
                       sort_keys=True)
     assert cfg.config_hash("5.0.1") == hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -138,6 +139,21 @@ def test_config_hash_of_the_original_look_is_unchanged():
     assert night.config_hash("5.0.1", "aa") != photo.config_hash("5.0.1", "aa")
     moved = GenerateConfig(seed=7, style="photo", textures="/elsewhere", texture_cache="/tmp/x").validated()
     assert moved.config_hash("5.0.1", "aa") == photo.config_hash("5.0.1", "aa")  # paths are not identity
+    assert GenerateConfig(seed=7, tilt_deg=(0.5, 2.5)).validated().config_hash("5.0.1") == cfg.config_hash("5.0.1")
+    assert GenerateConfig(seed=7, tilt_deg=(-14, 0)).validated().config_hash("5.0.1") != cfg.config_hash("5.0.1")
+
+
+def test_camera_tilt_range():
+    """--tilt draws the camera tilt from its range; the default range keeps the earlier plans."""
+    import math
+
+    default = make_plan(11, "random", 24, 24)
+    assert 0.5 <= math.degrees(default.camera.tilt) <= 2.5
+    down = make_plan(11, "random", 24, 24, tilt_deg=(-14.0, -10.0))
+    assert -14.0 <= math.degrees(down.camera.tilt) <= -10.0
+    assert down.camera.yaw_end == default.camera.yaw_end  # the same draws, only the tilt moves
+    with pytest.raises(Exception, match="--tilt"):
+        GenerateConfig(seed=7, tilt_deg=(5, -5)).validated()
 
 
 @pytest.mark.parametrize("change, message", [({"style": "cartoon"}, "--style 'cartoon'"),
