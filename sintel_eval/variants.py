@@ -183,6 +183,20 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("temporal_centred", "temporal centred (sim.)",
             "the same SIMULATED estimates through the centred temporal filter (3 past + 3 future frames)",
             temporal_stage("centred"), ours()),
+    # The same three rows on the trained estimator's real per-frame estimates (D as predicted,
+    # E from the network; no fit to the ground truth).
+    Variant("temporal_off_est", "estimated, filter off",
+            "the estimator's per-frame D and E (as predicted), unfiltered",
+            temporal_stage(None, estimator_inputs.estimate), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
+    Variant("temporal_causal_est", "estimated, causal filter",
+            "the estimator's per-frame D and E through the causal temporal filter (M = 6 past frames)",
+            temporal_stage("causal", estimator_inputs.estimate), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
+    Variant("temporal_centred_est", "estimated, centred filter",
+            "the estimator's per-frame D and E through the centred temporal filter (3 past + 3 future frames)",
+            temporal_stage("centred", estimator_inputs.estimate), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
 )
 """Every variant, in report order. The first is the reference row of the comparisons."""
 
