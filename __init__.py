@@ -14,11 +14,17 @@ _cli_handle = None
 
 
 def _cli(argv: list[str]) -> int:
-    """``blender -c rvr render ...``: the engine's ``rvr`` command line."""
+    """``blender -b -c rvr ...``: strip commands (``analyze``, and ``autofocus``/``render`` with
+    ``--blend FILE``) run the Sequencer operators on a .blend (:mod:`.operators.cli`); every
+    other command is the engine's ``rvr`` command line."""
+    from .operators import cli as strip_cli
     from .rvr_addon import cli
 
+    argv = list(argv)
+    if strip_cli.wants_blender(argv):
+        return strip_cli.run(argv)
     try:
-        return cli.main(list(argv))
+        return cli.main(argv)
     except SystemExit as ex:  # argparse's --help / usage errors: an exit status, not Blender's exit
         return ex.code if isinstance(ex.code, int) else (0 if ex.code is None else 1)
 

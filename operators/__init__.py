@@ -5,9 +5,9 @@ unregistered in reverse.
 """
 from __future__ import annotations
 
-from . import fcurves, ops_render, props
+from . import fcurves, ops_analyze, ops_focus, ops_render, prefs, preview, props  # noqa: F401 (preview: no classes)
 
-_modules = (props, fcurves, ops_render)
+_modules = (props, prefs, fcurves, ops_render, ops_analyze, ops_focus)
 
 
 def register() -> None:

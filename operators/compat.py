@@ -89,6 +89,15 @@ def prop_data_path(struct, prop: str) -> str:
                      "reach it by attribute access from its ID (e.g. strip.rvr)")
 
 
+def _path_options() -> set[str]:
+    """``options`` for a path property that may hold ``//`` (blend-relative) paths: Blender 5.0
+    warns about ``//`` unless the property declares PATH_SUPPORTS_BLEND_RELATIVE (unknown to 4.5)."""
+    return {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (5, 0, 0) else set()
+
+
+PATH_OPTIONS = _path_options()
+
+
 # ----------------------------------------------------------------------------- F-curves
 
 

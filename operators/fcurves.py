@@ -100,6 +100,44 @@ def write_keyframes(strip: "Strip", prop: str, keys: Iterable[tuple[float, float
     return fcurve
 
 
+GENERATED_TYPE = "GENERATED"
+"""Keyframe type of the keys Track / Auto Focus write (Blender shows them as small, pale keys)."""
+
+
+def replace_generated_keys(strip: "Strip", prop: str, keys: Iterable[tuple[float, float]],
+                           previous: Iterable[tuple[float, float]] = ()) -> tuple["FCurve", list, int]:
+    """Replace the keys a tool generated before with ``keys`` (scene frame, value), keeping the
+    editor's keys.
+
+    A key is the tool's to replace when its type is GENERATED *and* its (frame, value) is one
+    of ``previous`` (what the tool wrote last); any other key (inserted, moved or edited by
+    hand, or of another type) is the editor's and stays as it is, handles and all. A new key
+    within half a frame of an editor's key is dropped (the hand key wins). New keys are LINEAR
+    (the engine's keyframe list reproduces its track under linear interpolation).
+    Returns (the F-curve, the (frame, value) list written, the number of editor keys kept).
+    """
+    new = [(float(f), float(v)) for f, v in keys]
+    if not all(np.isfinite(f) and np.isfinite(v) for f, v in new):
+        raise ValueError(f"keyframes of strip.rvr.{prop} must be finite numbers")
+    old = {(round(float(f), 3), round(float(v), 4)) for f, v in previous}
+    fcurve = compat.fcurve_ensure(strip.id_data, data_path(strip, prop), 0, group=f"RVR {strip.name}")
+    points = fcurve.keyframe_points
+    ours = [i for i, k in enumerate(points)
+            if k.type == GENERATED_TYPE and (round(k.co[0], 3), round(k.co[1], 4)) in old]
+    for i in reversed(ours):
+        points.remove(points[i], fast=True)
+    hand = [k.co[0] for k in points]
+    written = []
+    for frame, value in new:
+        if any(abs(frame - h) < 0.5 for h in hand):
+            continue
+        key = points.insert(frame, value, options={"FAST"}, keyframe_type=GENERATED_TYPE)
+        key.interpolation = "LINEAR"
+        written.append((round(key.co[0], 3), round(key.co[1], 4)))
+    fcurve.update()
+    return fcurve, written, len(hand)
+
+
 def key_at(strip: "Strip", prop: str, frame: float) -> bool:
     """True when ``strip.rvr.<prop>`` has a key at scene ``frame``."""
     fcurve = find_fcurve(strip, prop)

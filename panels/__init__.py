@@ -1,9 +1,10 @@
-"""Blender UI of RVR-LAAF: panels only (they draw what operators/ defines)."""
+"""Blender UI of RVR-LAAF: panels, the target list and the preview overlay (they draw what
+operators/ defines)."""
 from __future__ import annotations
 
-from . import vse
+from . import overlay, vse
 
-_modules = (vse,)
+_modules = (vse, overlay)
 
 
 def register() -> None:

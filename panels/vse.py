@@ -1,4 +1,9 @@
-"""Sequencer sidebar: the Refocus tab (settings of the active strip, render, job status).
+"""Sequencer sidebar: the Refocus tab.
+
+Main panel: Analyze (and the cache it wrote), the animatable focus and aperture, the bokeh
+shape, the inputs, the preview mode, Render and the job status. Sub-panel "Focus Targets":
+the NFT list (:class:`RVR_UL_nfts`: frame, source, tracked range, kept), add / delete /
+jump, the active target's pull, the strip's default pull, Track and Auto Focus.
 
 Blender 5.0 cannot make an animation path to a property group held by a strip, so its own
 keyframe decorators do not work on ``strip.rvr``; each animatable field gets a key button
@@ -79,12 +84,82 @@ class RVR_PT_focus(bpy.types.Panel):
         col = layout.column()
         col.prop(rvr, "depth_path")
         col.prop(rvr, "hdr_path")
-        col.prop(rvr, "output_dir")
+        row = layout.row(align=True)
+        row.operator("rvr.analyze", icon="VIEW_CAMERA")
+        if rvr.cache_path:
+            layout.label(text=f"Cache: {rvr.cache_path}", icon="CHECKMARK")
+
+        col = layout.column()
+        col.prop(rvr, "preview_mode")
+        col.prop(rvr, "show_targets")
 
         layout.separator()
+        col = layout.column()
+        col.prop(rvr, "render_format")
+        col.prop(rvr, "render_size")
+        col.prop(rvr, "output_dir")
         layout.operator("rvr.render_strip", icon="RENDER_ANIMATION")
         draw_job_status(layout, context.window_manager)
 
 
-classes = (RVR_PT_focus,)
+class RVR_UL_nfts(bpy.types.UIList):
+    """Focus targets of a strip: clip frame, source, tracked range; the pin shows a kept target"""
+
+    def draw_item(self, context, layout, data, item, icon, active_data, active_propname, index=0) -> None:
+        row = layout.row(align=True)
+        row.label(text=f"{item.frame}", icon="PINNED" if item.keep else "UNPINNED")
+        row.label(text=item.source)
+        if item.tracked_start >= 0:
+            row.label(text=f"{item.tracked_start}-{item.tracked_end}")
+        else:
+            row.label(text="not tracked")
+
+
+class RVR_PT_targets(bpy.types.Panel):
+    """Focus targets, pulls, Track and Auto Focus of the active strip"""
+
+    bl_idname = "RVR_PT_targets"
+    bl_label = "Focus Targets"
+    bl_space_type = "SEQUENCE_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "Refocus"
+    bl_parent_id = "RVR_PT_focus"
+
+    @classmethod
+    def poll(cls, context) -> bool:
+        strip = compat.active_strip(context)
+        return strip is not None and compat.strip_type(strip) in RENDERABLE_TYPES
+
+    def draw(self, context) -> None:
+        layout = self.layout
+        rvr = compat.active_strip(context).rvr
+        row = layout.row()
+        row.template_list("RVR_UL_nfts", "", rvr, "nfts", rvr, "nft_index", rows=3)
+        col = row.column(align=True)
+        col.operator("rvr.add_focus_target", text="", icon="ADD")
+        col.operator("rvr.remove_focus_target", text="", icon="REMOVE")
+        col.operator("rvr.jump_to_target", text="", icon="TIME")
+        layout.use_property_split = True
+        layout.use_property_decorate = False
+        if 0 <= rvr.nft_index < len(rvr.nfts):
+            item = rvr.nfts[rvr.nft_index]
+            box = layout.box()
+            box.prop(item, "frame")
+            box.prop(item, "box")
+            box.prop(item, "keep")
+            box.prop(item, "pull_frames")
+            box.prop(item, "lead_frames")
+        col = layout.column(align=True)
+        col.prop(rvr, "pull_frames")
+        col.prop(rvr, "lead_frames")
+        col.prop(rvr, "pull_profile")
+        col.prop(rvr, "hold_frames")
+        layout.operator("rvr.track_targets", icon="TRACKER")
+        col = layout.column()
+        col.prop(rvr, "autofocus_preset")
+        col.prop(rvr, "lookahead_s")
+        layout.operator("rvr.auto_focus", icon="VIEWZOOM")
+
+
+classes = (RVR_PT_focus, RVR_UL_nfts, RVR_PT_targets)
 register, unregister = bpy.utils.register_classes_factory(classes)

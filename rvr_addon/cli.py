@@ -1,6 +1,7 @@
 """The ``rvr`` command line: ``rvr render INPUT --depth DEPTH ... -o OUT``, ``rvr render --demo``,
-``rvr train --data DIR -o RUN_DIR``, ``rvr estimate INPUT -o CACHE``, ``rvr stabilize CACHE`` and
-``rvr eval-estimator --weights W --data HELDOUT -o REPORT``."""
+``rvr train --data DIR -o RUN_DIR``, ``rvr estimate INPUT -o CACHE``, ``rvr stabilize CACHE``,
+``rvr eval-estimator --weights W --data HELDOUT -o REPORT``, ``rvr train-afnet --data DIR -o RUN_DIR``
+and ``rvr batch CLIPS... -o OUT``."""
 from __future__ import annotations
 
 import argparse
@@ -306,9 +307,15 @@ def build_parser() -> argparse.ArgumentParser:
     from .laaf.commands import add_parsers as add_laaf_parsers
 
     add_laaf_parsers(sub)  # rvr autofocus, rvr eval-focus
+    from .afnet.commands import add_parser as add_train_afnet_parser
+
+    add_train_afnet_parser(sub)  # rvr train-afnet
     from .temporal.commands import add_parser as add_stabilize_parser
 
     add_stabilize_parser(sub)  # rvr stabilize
+    from .batch.commands import add_parser as add_batch_parser
+
+    add_batch_parser(sub)  # rvr batch
     return parser
 
 

@@ -15,6 +15,9 @@ PYCHECK
 .venv/bin/python -m pip install --quiet --upgrade "pip>=24"
 .venv/bin/python -m pip install --quiet -r requirements.txt -c constraints.txt
 .venv/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
+# the wheels the Blender extension zip bundles (scripts/build_extension.py; the install test uses them)
+PIP=.venv/bin/pip scripts/fetch_wheels.sh >/dev/null \
+  || echo "rvr-laaf: could not download the extension's wheels; run scripts/fetch_wheels.sh before building the zip" >&2
 # espeak-ng (Debian package; the harness' "conversation" script speaks with it). Best effort:
 # installed with apt-get when we are root and it is missing; the harness names the fix otherwise.
 # Tested with Debian 12's 1.51+dfsg-10+deb12u2 (the version is taken from the distribution).

@@ -117,6 +117,9 @@ def _open_clips(ab: Ablation) -> list[tuple[ClipReader, list[str]]]:
         try:
             reader = ClipReader(folder)
             tracks = reader.tracks
+            if reader.manifest.get("config", {}).get("dof") is False:
+                raise InputError(f"Clip '{folder}' was generated with --no-dof: it has no DOF ground truth to compare "
+                                 "with (no dof/<track>/); regenerate it without --no-dof to ablate it.")
             if not tracks:
                 raise InputError(f"Clip '{folder}' has no ground-truth DOF track (no dof/<track>/ folder); "
                                  "re-run generate to finish it.")

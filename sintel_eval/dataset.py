@@ -73,7 +73,11 @@ class GenerateConfig:
     warning); lighting: "auto" (procedural: classic; photo: a seeded day, dim or night),
     "classic", "day", "dim" or "night"; textures: the texture folder (None: $RVR_TEXTURES or
     ../shared/data); texture_cache: where crops go (None: $RVR_TEXTURE_CACHE or
-    ~/.cache/rvr-laaf/textures). See sintel_eval/DATASET.md "Looks"."""
+    ~/.cache/rvr-laaf/textures). See sintel_eval/DATASET.md "Looks".
+
+    dof: render the shallow-DOF focus tracks (``dof/``); False (``--no-dof``) renders only the
+    deep pass (input, GT disparity, HDR), e.g. event clips for AF-Net, and implies
+    ``train_every = 0`` (the training triplets need the DOF passes)."""
 
     seed: int
     frames: int = 48
@@ -94,6 +98,7 @@ class GenerateConfig:
     textures: str | None = None
     texture_cache: str | None = None
     tilt_deg: tuple[float, float] = DEFAULT_TILT_DEG
+    dof: bool = True
 
     def validated(self) -> "GenerateConfig":
         """A normalised copy; raises InputError naming the setting and the fix."""
@@ -115,6 +120,7 @@ class GenerateConfig:
                              "to the smallest (increasing f-numbers), e.g. 1.0,2.8,8.0")
         if not (math.isfinite(self.f_number_ref) and self.f_number_ref > 0):
             raise InputError(f"f_number_ref={self.f_number_ref}: must be a positive f-number")
+        dof = bool(self.dof)
         if int(self.train_every) < 0:
             raise InputError(f"--train-every {self.train_every}: use 0 (no training passes) or a positive step")
         if int(self.pull_frames) < 1:
@@ -137,7 +143,8 @@ class GenerateConfig:
                        script=script, frames=int(self.frames), width=int(self.width),
                        height=int(self.height), samples=int(self.samples), dof_samples=int(self.dof_samples),
                        train_samples=int(self.train_samples),
-                       f_numbers=f_numbers, f_number_ref=float(self.f_number_ref), train_every=int(self.train_every),
+                       f_numbers=f_numbers, f_number_ref=float(self.f_number_ref),
+                       train_every=int(self.train_every) if dof else 0, dof=dof,
                        pull_frames=int(self.pull_frames), denoise=bool(self.denoise), fps=int(self.fps))
 
     def to_dict(self) -> dict:
@@ -162,6 +169,8 @@ class GenerateConfig:
             config.pop(key)
         if tuple(self.tilt_deg) == DEFAULT_TILT_DEG:
             config.pop("tilt_deg")  # the hash of a default clip is the one of earlier versions
+        if config.get("dof", True):
+            config.pop("dof", None)  # likewise for a clip with its DOF passes
         blob = {"config": config, "format": FORMAT, "harness": HARNESS_VERSION, "blender": blender_version}
         if not self.original_look:
             blob["look"] = {"style": self.style, "lighting": self.lighting, "version": LOOK_VERSION,
@@ -507,7 +516,7 @@ def _render_frame(out: Path, k: int, cfg: GenerateConfig, chash: str, lens: Lens
         return None
 
     lens_meta = {"blades": 0, "ratio": 1.0, "samples": cfg.dof_samples, "denoiser": denoiser}
-    for track in TRACKS:
+    for track in TRACKS if cfg.dof else ():  # --no-dof: the deep pass only
         rec = dict(tracks[track][k - 1])
         base = out / "dof" / track / name
         src = lens_render(LensSetting(rec["focus_distance_m"], rec["f_number"]), _with(base, ".png"),
@@ -585,13 +594,14 @@ def _finalize(out: Path, cfg: GenerateConfig, tracks: dict, with_audio: bool) ->
 
     from rvr_addon.io.writer import VideoWriter
 
-    for track in TRACKS:
+    tracks_done = TRACKS if cfg.dof else ()  # --no-dof: no dof/ folder at all
+    for track in tracks_done:
         keys = [{"frame": r["index"], "focus": r["focus_disparity"], "aperture": r["aperture_scale"]}
                 for r in tracks[track]]
         write_json(out / "dof" / track / "rvr_track.json", keys)
     audio = out / "audio" / "speech.wav" if with_audio else None
     for video, folder in [(out / "input.mp4", out / "input")] + [(out / "dof" / f"{t}.mp4", out / "dof" / t)
-                                                                 for t in TRACKS]:
+                                                                 for t in tracks_done]:
         with VideoWriter(video, cfg.fps, (cfg.width, cfg.height)) as writer:
             for k in range(1, cfg.frames + 1):
                 img = cv2.imread(str(folder / f"{frame_name(k)}.png"), cv2.IMREAD_COLOR)
@@ -684,7 +694,8 @@ def _manifest(cfg: GenerateConfig, chash: str, plan, lens: Lens, built, records:
             "deep": {"lens": "pinhole", "samples": cfg.samples, "passes": ["Combined", "Z", "IndexOB"],
                      "files": ["input/frame_%05d.png", "gt/hdr/frame_%05d.exr", "gt/disparity/frame_%05d.exr",
                                "gt/exponent/frame_%05d.exr"]},
-            "dof": {"tracks": list(TRACKS), "samples": cfg.dof_samples, "f_number": f_large,
+            "dof": {"tracks": list(TRACKS) if cfg.dof else [], "skipped": not cfg.dof,
+                    "samples": cfg.dof_samples, "f_number": f_large,
                     "files": ["dof/<track>/frame_%05d.png", "dof/<track>/frame_%05d.exr",
                               "dof/<track>/frame_%05d.json"]},
             "train": {"every": cfg.train_every, "f_numbers": list(cfg.f_numbers),

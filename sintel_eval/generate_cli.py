@@ -4,7 +4,7 @@
                                    [--dof-samples S] [--train-samples S] [--f-numbers L,M,S] [--train-every N]
                                    [--pull-frames N] [--style auto|procedural|photo]
                                    [--lighting auto|classic|day|dim|night] [--textures DIR]
-                                   [--texture-cache DIR] [--tilt MIN,MAX] [--no-denoise] [--force] [-q] -o DIR
+                                   [--texture-cache DIR] [--tilt MIN,MAX] [--no-denoise] [--no-dof] [--force] [-q] -o DIR
 """
 from __future__ import annotations
 
@@ -75,6 +75,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
                           "near subject's head in frame); e.g. -14,0 shows the floor receding, as in much real "
                           "footage (the estimator's training data)")
     gen.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
+    gen.add_argument("--no-dof", action="store_true",
+                     help="render only the deep pass (input, GT disparity and HDR, events): no shallow-DOF focus "
+                          "tracks and no training triplets (implies --train-every 0); for event clips such as "
+                          "AF-Net's training data. `ablate` skips such clips (no DOF ground truth)")
     gen.add_argument("--force", action="store_true",
                      help="regenerate from scratch (removes only the harness' own files in DIR)")
     gen.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -101,7 +105,7 @@ def main(args: argparse.Namespace) -> int:
                              f_numbers=args.f_numbers, train_every=args.train_every, pull_frames=args.pull_frames,
                              denoise=not args.no_denoise, style=args.style, lighting=args.lighting,
                              textures=args.textures, texture_cache=args.texture_cache,
-                             **({"tilt_deg": args.tilt} if args.tilt else {})).validated()
+                             dof=not args.no_dof, **({"tilt_deg": args.tilt} if args.tilt else {})).validated()
         result = generate(args.out, cfg, force=args.force, progress=not args.quiet)
     except RvrError as exc:
         print(f"error: {exc}", file=sys.stderr)

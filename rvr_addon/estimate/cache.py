@@ -313,6 +313,49 @@ class ClipCache:
         if self._dirty >= self.flush_every:
             self.flush()
 
+    def adopt(self, files: dict[int, Path], stabilized: dict | None = None) -> int:
+        """Move frame files finished elsewhere into this cache and record them (``rvr batch``:
+        each chunk writes a staging cache of its own; one task per clip adopts them here, so
+        meta.json has one writer). Returns the number of files moved.
+
+        files: clip index -> EXR on the same filesystem, checked by the writer (a staging
+        :class:`ClipCache` under this key). A file that already is this cache's frame (a hard
+        link, or the frame path itself) is only recorded, so adopting again after a crash is
+        safe. stabilized: None for raw frames (D, E; replacing a recorded frame with another
+        file drops the stabilized record, as :meth:`write` does); else the settings record
+        the files' S.* channels were made with (as :meth:`begin_stabilized` takes it): the
+        moves are recorded as pending first, so a crash mid-way leaves every raw frame valid.
+        """
+        if stabilized is not None:
+            self.begin_stabilized(stabilized)
+        sizes, moves = {}, []
+        for index, src in sorted(files.items()):
+            dst = frame_path(self.folder, index)
+            sizes[index] = src.stat().st_size
+            if not (dst.exists() and os.path.samefile(src, dst)):
+                moves.append((index, src, dst))
+        if moves:
+            for index, _, _ in moves:
+                if stabilized is not None:
+                    self.stabilized["pending"][str(index + 1)] = sizes[index]
+                else:
+                    self.frames.pop(str(index + 1), None)
+            if stabilized is None and self.stabilized is not None:
+                log.info("cache '%s': %d frames re-estimated; the stabilized channels are outdated", self.folder,
+                         len(moves))
+                self._adopt_pending()
+                self.stabilized = None
+            self.flush()
+            for _, src, dst in moves:
+                os.replace(src, dst)
+        for index, size in sizes.items():
+            self.frames[str(index + 1)] = size
+            if stabilized is not None:
+                self.stabilized["frames"][str(index + 1)] = size
+                self.stabilized["pending"].pop(str(index + 1), None)
+        self.flush()
+        return len(moves)
+
     def read_stabilized(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(S.D (H, W), S.E (H, W, 3), S.C (H, W)) float32 of a stabilized frame."""
         ch = read_exr(frame_path(self.folder, index))

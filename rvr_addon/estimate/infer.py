@@ -263,7 +263,9 @@ class EstimateSettings:
 class EstimateJob:
     """Stream a clip through the estimator into its cache (see the module docstring)."""
 
-    def __init__(self, settings: EstimateSettings) -> None:
+    def __init__(self, settings: EstimateSettings, model: LoadedModel | None = None) -> None:
+        """model: weights already loaded (e.g. once per batch worker, ``rvr batch``); None loads
+        ``settings.weights`` (or the shipped weights) when the network is needed."""
         from ..io.video import probe_clip
         from .cache import CACHE_FORMAT, ClipCache, source_fingerprint
 
@@ -286,7 +288,8 @@ class EstimateJob:
             self.depth.fit(self.start, size)
         self.model: LoadedModel | None = None
         if not s.no_hdr:
-            self.model = load_estimator(s.weights if s.weights is not None else default_weights())
+            self.model = model if model is not None else load_estimator(
+                s.weights if s.weights is not None else default_weights())
         self.estimator = Estimator(self.model, s.max_pixels) if self.model is not None else None
         model_hash = self.model.model_hash if self.model is not None else "none"
         source = source_fingerprint(s.input)

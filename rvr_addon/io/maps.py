@@ -199,7 +199,11 @@ class MapSequence:
                 f"{self.label} has {len(self)} maps but frame {index} was requested (frames count from 0); "
                 "supply one map per frame of the clip."
             )
-        return self.paths[index]
+        path = self.paths[index]
+        if not path.is_file():
+            raise InputError(f"{self.label} lacks frame {index} ('{path.name}'); analyse (rvr estimate) the frames "
+                             "you render")
+        return path
 
     def get(self, index: int, size: tuple[int, int] | None = None) -> np.ndarray:
         """Map of frame `index` as float32 (H, W) (disparity; hdr maps may be (H, W, 3)).
@@ -292,8 +296,13 @@ def _use_cache_channels(seq: MapSequence, folder: Path) -> None:
         return
     if not isinstance(meta, dict) or not str(meta.get("format", "")).startswith("rvr-laaf-cache/"):
         return
-    from ..estimate.cache import stabilized_complete
+    from ..estimate.cache import _FRAME_RE, FRAME_NAME, stabilized_complete
 
+    # a cache may hold a part of its clip (frames 40..80 of a trimmed strip): index i is the
+    # file of clip frame i (frame_NNNNN.exr = i + 1), never the i-th file present
+    numbers = [int(m.group(1)) for p in seq.paths if (m := _FRAME_RE.match(p.name))]
+    if numbers:
+        seq.paths = [folder / FRAME_NAME.format(i) for i in range(1, max(numbers) + 1)]
     name = _KIND_NAMES[seq.kind]
     if stabilized_complete(meta):
         seq.prefix = "S."

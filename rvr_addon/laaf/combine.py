@@ -39,6 +39,7 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "conversation": ("speech", "face"),
     "faces": ("face",),
     "salient": ("saliency",),
+    "learned": ("afnet",),  # AF-Net (rvr_addon/afnet): proposes NFTs itself, needs trained weights
 }
 FALLBACKS = {"conversation": "faces", "action": "salient"}
 PRIMARY = {"action": "action", "conversation": "speech"}

@@ -19,6 +19,19 @@ def _pull_args(p: argparse.ArgumentParser) -> None:
                    help="after a subject is lost, hold its focus this long before releasing (default 12)")
 
 
+def _afnet_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--afnet-weights", type=Path, metavar="PATH",
+                   help="AF-Net weights for --preset learned (rvr train-afnet's RUN/afnet.pt; default "
+                        "rvr_addon/afnet/weights/afnet.pt)")
+    p.add_argument("--afnet-threshold", type=float, default=0.5, metavar="P",
+                   help="NFT probability an AF-Net peak must reach, 0..1 (default 0.5)")
+
+
+def _check_afnet(args: argparse.Namespace) -> None:
+    if not 0.0 < args.afnet_threshold < 1.0:
+        raise RvrError(f"--afnet-threshold must be between 0 and 1, got {args.afnet_threshold}")
+
+
 def _pull(args: argparse.Namespace):
     from .puller import PullSettings
 
@@ -46,7 +59,9 @@ def add_autofocus_parser(sub) -> None:
     p.add_argument("--depth-scale", type=float, default=1.0, help="with --depth: multiply the maps")
     p.add_argument("--depth-offset", type=float, default=0.0, help="with --depth: then add this")
     p.add_argument("--preset", choices=tuple(PRESETS), default=None,
-                   help="AI-assist preset: action={action,saliency}, conversation={speech,face}, faces, salient")
+                   help="AI-assist preset: action={action,saliency}, conversation={speech,face}, faces, salient; "
+                        "or learned: AF-Net predicts the NFTs of any video (needs trained weights, --afnet-weights)")
+    _afnet_args(p)
     p.add_argument("--targets", type=Path, help="manual NFTs (JSON: [{t, x, y, box, source}], 0-based frames)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
     p.add_argument("--causal", action="store_true", help="no look-ahead (window 0): what a camera could do")
@@ -70,11 +85,13 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
 
     if args.output.suffix.lower() != ".json":
         raise RvrError(f"-o {args.output}: the focus file is JSON; give a name ending in .json")
+    _check_afnet(args)
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,
         depth_offset=args.depth_offset, preset=args.preset, targets=args.targets, window_s=args.window,
         causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
-        min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps)
+        min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
+        afnet_threshold=args.afnet_threshold)
     job = AutofocusJob(settings)
     try:
         result = job.run(progress=not args.quiet)
@@ -129,7 +146,9 @@ def add_eval_focus_parser(sub) -> None:
                                    "summary.json, report.md and focus plots in REPORT.")
     p.add_argument("dataset", type=Path, help="folder of harness clips (or one clip)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="REPORT", help="report folder")
-    p.add_argument("--presets", nargs="+", choices=tuple(PRESETS), default=["action", "conversation"])
+    p.add_argument("--presets", nargs="+", choices=tuple(PRESETS), default=["action", "conversation"],
+                   help="presets to evaluate on the same clips (default action conversation; add learned for AF-Net)")
+    _afnet_args(p)
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
     _pull_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
@@ -139,7 +158,9 @@ def add_eval_focus_parser(sub) -> None:
 def cmd_eval_focus(args: argparse.Namespace) -> int:
     from .evaluate import evaluate
 
-    summary = evaluate(args.dataset, args.output, args.presets, _pull(args), args.window, progress=not args.quiet)
+    _check_afnet(args)
+    summary = evaluate(args.dataset, args.output, args.presets, _pull(args), args.window, progress=not args.quiet,
+                       afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold)
     for p in args.presets:
         g = summary.get
         print(f"{p}: look-ahead mean|dt| {g(f'focus.{p}.mean_dt_frames')} frames, mean|dd| {g(f'focus.{p}.mean_dd')}; "

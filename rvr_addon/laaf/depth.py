@@ -14,8 +14,9 @@ from ..errors import InputError
 
 log = logging.getLogger(__name__)
 
-# channel names a stabilised disparity may carry in a cache EXR (temporal stage), best first
-STABILIZED_CHANNELS = ("D_stab", "Ds", "D.stab", "D.stabilized", "stab.D", "stabilized.D", "Dstab")
+# channel names a stabilised disparity may carry in a cache EXR (temporal stage), best first;
+# "S.D" is what `rvr stabilize` writes (rvr_addon.estimate.cache.STABILIZED_CHANNELS)
+STABILIZED_CHANNELS = ("S.D", "D_stab", "Ds", "D.stab", "D.stabilized", "stab.D", "stabilized.D", "Dstab")
 
 
 def pick_disparity_channel(channels: dict[str, np.ndarray]) -> str:
@@ -66,6 +67,11 @@ class DisparitySource:
                                  "or pass the maps with --depth")
             self.maps = None
             self.label = f"cache '{self.cache}'"
+            from ..estimate.cache import stabilized_complete
+
+            meta = json.loads((self.cache / "meta.json").read_text())
+            # the temporally stabilized channel when every frame has it (rvr stabilize), else raw D
+            self.channel = "S.D" if stabilized_complete(meta) else None
         else:
             from ..io.maps import open_map_sequence
 
@@ -99,7 +105,7 @@ class DisparitySource:
             if not path.is_file():
                 raise InputError(f"{self.label} lacks frame {index} ('{path.name}'); run `rvr estimate` first")
             channels = read_exr(path)
-            name = pick_disparity_channel(channels)
+            name = self.channel if self.channel in channels else pick_disparity_channel(channels)
             if self.channel is None:
                 self.channel = name
                 log.info("reading disparity channel %s of %s", name, self.label)

@@ -23,6 +23,10 @@ would react to. For each clip and preset, LAAF runs twice on the ground-truth di
   ground-truth NFTs). The headline ``focus.<preset>.*`` keys pool the clips the preset is made
   for (action: enter and start-moving; conversation: conversation); ``.all`` pools every clip
   (the random script, whose crossing extras have no ground-truth event, counts there).
+- Preset ``learned`` (AF-Net, paper section 5.3, Table 2) is made for every kind of clip, so
+  its headline keys pool all clips; compare them with the presets' ``.all`` keys (the same
+  clips). A clip without ground-truth NFTs adds frames to |delta d| and nothing to |delta t|.
+  Its weights come from ``afnet_weights`` (checked once, before any clip runs).
 """
 from __future__ import annotations
 
@@ -40,7 +44,8 @@ from .puller import PullSettings, PullTarget, compose_track
 log = logging.getLogger(__name__)
 
 PRESET_SCRIPTS = {"action": ("enter", "start-moving"), "conversation": ("conversation",),
-                  "faces": ("conversation",), "salient": ("enter", "start-moving")}
+                  "faces": ("conversation",), "salient": ("enter", "start-moving"),
+                  "learned": ("enter", "start-moving", "conversation", "random")}
 
 
 @dataclass
@@ -155,11 +160,13 @@ def clip_input(folder: Path) -> Path:
 
 
 def score_run(folder: Path, manifest: dict, preset: str, causal: bool, pull: PullSettings,
-              window_s: float = 2.0, max_dt: int | None = None) -> tuple[ClipScore, AutofocusResult]:
+              window_s: float = 2.0, max_dt: int | None = None, afnet_weights: Path | None = None,
+              afnet_threshold: float = 0.5) -> tuple[ClipScore, AutofocusResult]:
     """Run LAAF on one clip (ground-truth disparity) and score it."""
     fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
     settings = AutofocusSettings(input=clip_input(folder), depth=folder / "gt" / "disparity", preset=preset,
-                                 window_s=window_s, causal=causal, pull=pull, fps=fps)
+                                 window_s=window_s, causal=causal, pull=pull, fps=fps, afnet_weights=afnet_weights,
+                                 afnet_threshold=afnet_threshold)
     result = AutofocusJob(settings).run(progress=False)
     gt = ground_truth(manifest, pull)
     n = min(len(gt.focus), len(result.focus))
@@ -210,11 +217,19 @@ def _plot(path: Path, clip: str, runs: dict[str, tuple[ClipScore, ClipScore]]) -
 
 
 def evaluate(dataset: str | Path, out: str | Path, presets: list[str], pull: PullSettings | None = None,
-             window_s: float = 2.0, progress: bool = True) -> dict:
+             window_s: float = 2.0, progress: bool = True, afnet_weights: Path | None = None,
+             afnet_threshold: float = 0.5) -> dict:
     """Evaluate every preset, look-ahead and causal, on every clip; write the report folder
-    (summary.json, report.md, one plot per clip). Returns the summary dict."""
+    (summary.json, report.md, one plot per clip). Returns the summary dict.
+
+    Raises InputError before any clip runs when preset ``learned`` is asked for and its AF-Net
+    weights (``afnet_weights``, default the shipped ones) are missing."""
     from tqdm import tqdm
 
+    if "learned" in presets:
+        from ..afnet.infer import load_afnet
+
+        load_afnet(afnet_weights)  # fail now, naming the path and the command that makes it
     pull = pull or PullSettings()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -227,7 +242,8 @@ def evaluate(dataset: str | Path, out: str | Path, presets: list[str], pull: Pul
         for preset in presets:
             pair = []
             for causal in (False, True):
-                score, _ = score_run(folder, manifest, preset, causal, pull, window_s)
+                score, _ = score_run(folder, manifest, preset, causal, pull, window_s,
+                                     afnet_weights=afnet_weights, afnet_threshold=afnet_threshold)
                 scores.append(score)
                 pair.append(score)
                 bar.update(1)
@@ -279,6 +295,15 @@ def _markdown(scores: list[ClipScore], summary: dict, presets: list[str], pull: 
         g = summary.get
         lines.append(f"| {p} | {_fmt(g(f'focus.{p}.mean_dt_frames'))} | {_fmt(g(f'focus.{p}.mean_dd'))} | "
                      f"{_fmt(g(f'focus.{p}.causal.mean_dt_frames'))} | {_fmt(g(f'focus.{p}.causal.mean_dd'))} |")
+    lines += ["", "## All clips (the same clips for every preset; `learned` = AF-Net)", "",
+              "| preset | clips | look-ahead mean abs dt | look-ahead mean abs dd | misses / false | "
+              "causal mean abs dt | causal mean abs dd |", "|---|---|---|---|---|---|---|"]
+    for p in presets:
+        g = summary.get
+        lines.append(f"| {p} | {int(g(f'focus.{p}.all.clips', 0))} | {_fmt(g(f'focus.{p}.all.mean_dt_frames'))} | "
+                     f"{_fmt(g(f'focus.{p}.all.mean_dd'))} | {int(g(f'focus.{p}.all.misses', 0))} / "
+                     f"{int(g(f'focus.{p}.all.false_nfts', 0))} | {_fmt(g(f'focus.{p}.all.causal.mean_dt_frames'))} | "
+                     f"{_fmt(g(f'focus.{p}.all.causal.mean_dd'))} |")
     lines += ["", "Plots: `<clip>.png` (black: ground truth, blue: look-ahead, red dashed: causal; "
               "dotted lines: ground-truth NFTs; triangles: predicted NFTs).", ""]
     return "\n".join(lines)

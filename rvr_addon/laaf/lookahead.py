@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -55,6 +55,8 @@ class AutofocusSettings:
     min_step: smallest focus change (disparity units) that makes an NFT.
     min_area: smallest focus region, as a fraction of the frame.
     keyframe_tol: the keyframes reproduce the track within this (disparity units).
+    afnet_weights: AF-Net weights for preset 'learned' (None: rvr_addon/afnet/weights/afnet.pt).
+    afnet_threshold: NFT probability an AF-Net peak must reach (0..1).
     """
 
     input: Path
@@ -79,6 +81,8 @@ class AutofocusSettings:
     face_every: int = 6
     speech_window_s: float = 1.0
     keyframe_tol: float = 0.05
+    afnet_weights: Path | None = None
+    afnet_threshold: float = 0.5
 
 
 @dataclass
@@ -92,6 +96,7 @@ class TargetState:
     lost_from: int | None = None
     active: bool = True
     events: list[dict] = field(default_factory=list)
+    boxes: dict[int, tuple[Box, bool]] = field(default_factory=dict)  # frame -> (analysis box, on subject)
 
 
 @dataclass
@@ -99,7 +104,9 @@ class AutofocusResult:
     """focus, aperture: (n,) per frame (DESIGN units / scale); keys: linear keyframes;
     nfts: targets in frame order (the first is the initial focus); tracking: loss,
     re-initialisation and exit events; signal: per-frame raw and held focus level of the
-    detector combination (NaN = empty); detectors: metrics; clip: ClipInfo; start: first frame."""
+    detector combination (NaN = empty); detectors: metrics; clip: ClipInfo; start: first frame.
+    boxes: per NFT (same order), {frame: ((x, y, w, h) native px, on_subject)} for the frames
+    its subject was tracked (forward and backward over its pull; frames relative to start)."""
 
     focus: np.ndarray
     aperture: np.ndarray
@@ -113,6 +120,7 @@ class AutofocusResult:
     start: int
     settings: dict
     seconds: float
+    boxes: list[dict[int, tuple[Box, bool]]] = field(default_factory=list)
 
 
 class AutofocusJob:
@@ -145,14 +153,14 @@ class AutofocusJob:
         manual = list(s.nfts or [])
         if s.targets is not None:
             manual += load_nfts(s.targets, self.clip.width, self.clip.height)
-        manual = [NFT(n.x, n.y, n.t - self.start, n.box, n.source, 0, n.confidence, n.aperture, n.subject)
-                  for n in manual] if self.start else manual
+        manual = [replace(n, t=n.t - self.start, known_at=0) for n in manual] if self.start else manual
         self.manual = validate_nfts(manual, self.n, self.clip.width, self.clip.height,
                                     where=f"NFTs of '{s.targets}'" if s.targets else "NFTs") if manual else []
         self.preset_used: str | None = s.preset
         self.fallback_note = ""
         self.detectors: dict[str, FocusDetector] = {}
         self._build_detectors()
+        self.learned = self.detectors.get("afnet")  # preset 'learned': AF-Net proposes the NFTs itself
         self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
                                           causal=self.causal)
         self.detector_lag = max([d.lookahead_frames for n, d in self.detectors.items()
@@ -182,6 +190,10 @@ class AutofocusJob:
             self._combo: tuple[str, ...] = ()
             return
         names = list(PRESETS[s.preset])
+        if "afnet" in names:
+            from .detectors.afnet import AFNetDetector
+
+            self.detectors["afnet"] = AFNetDetector(s.afnet_weights, self.n, self.fps, s.afnet_threshold)
         from .detectors.action import ActionDetector
         from .detectors.face import FaceDetector
         from .detectors.saliency import SaliencyDetector
@@ -276,7 +288,11 @@ class AutofocusJob:
         while self._measured <= last:
             self._measure(self._measured, ingest=last)
             self._measured += 1
-        if self._combo:
+        if self.learned is not None:
+            self.step_detector.finish()
+            for cand in self.learned.take_nfts():
+                self._commit_learned(cand, ingest=last)
+        elif self._combo:
             for st in self.step_detector.finish():
                 self._commit(st, ingest=last)
         self._finished = True
@@ -305,8 +321,13 @@ class AutofocusJob:
             if not math.isfinite(level):
                 level = float(self.targets[0].level[0]) if self.targets else level
         self._timings["combine_s"] += time.perf_counter() - t0
-        for st in self.step_detector.push(level):
-            self._commit(st, ingest)
+        steps = self.step_detector.push(level)
+        if self.learned is not None:
+            for cand in self.learned.take_nfts():
+                self._commit_learned(cand, ingest)
+        else:
+            for st in steps:
+                self._commit(st, ingest)
         self.held[m] = self.step_detector.held[m]
 
     def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int) -> None:
@@ -349,7 +370,7 @@ class AutofocusJob:
         self._add_target(nft, region.box, 0, ingest, mask=region.mask)
 
     def _source(self, used: tuple[str, ...]) -> str:
-        for name in ("speech", "action", "face", "saliency"):
+        for name in ("afnet", "speech", "action", "face", "saliency"):
             if name in used:
                 return name
         return "initial"
@@ -386,6 +407,19 @@ class AutofocusJob:
                   subject=outputs_tid, detail={"level_before": round(step.before, 4), "level_after": round(step.after, 4)})
         self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
 
+    def _commit_learned(self, cand, ingest: int) -> None:
+        """An NFT proposed by AF-Net: (frame t, frame q of its region, probability, region)."""
+        t, q, p, region = cand
+        if t >= self.n or any(n.t == t for n in self.manual) or any(tg.nft.t == t for tg in self.targets):
+            return
+        if any(abs(n.t - t) < self.settings.pull.pull_frames for n in self.manual):
+            return  # the user wins
+        t_box = min(max(q, self.buffer[0].t), self.buffer[-1].t)  # the region's frame, kept in the buffer
+        known_at = max(0, ingest - self.window)
+        nft = self._nft_from_region(region, t, "afnet", known_at, None)
+        nft = replace(nft, confidence=round(float(p), 4), detail={"p": round(float(p), 4), "region_frame": int(q)})
+        self._add_target(nft, region.box, t_box, ingest, mask=region.mask)
+
     # -- targets and tracking -----------------------------------------------------------------
     def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:
         return read_focus(af.disparity, box, mask, prior=prior).value
@@ -398,6 +432,7 @@ class AutofocusJob:
         af = self._frame(t_box)
         tg.tracker = SubjectTracker()
         tg.tracker.start(af.rgb, box, t_box)
+        tg.boxes[t_box] = (tuple(box), True)
         tg.level[t_box] = self._read(af, box, mask)
         # backwards over the frames the pull to this target may use
         p = self.settings.pull
@@ -410,6 +445,7 @@ class AutofocusJob:
             state = back.update(f.rgb, k)
             if not state.ok:
                 break
+            tg.boxes[k] = (state.box, True)
             value = self._read(f, state.box, prior=float(tg.level[k + 1]))
             if abs(value - float(tg.level[k + 1])) > self.max_jump:
                 tg.events.append({"frame": k, "status": "depth_jump", "score": round(value, 3), "direction": "backward"})
@@ -432,6 +468,7 @@ class AutofocusJob:
 
     def _update_target(self, tg: TargetState, af: AnalysisFrame) -> None:
         state = tg.tracker.update(af.rgb, af.t)
+        tg.boxes[af.t] = (state.box, state.ok)
         if state.ok:
             known = tg.level[:af.t]
             prior = known[np.isfinite(known)][-1] if np.isfinite(known).any() else None
@@ -468,7 +505,8 @@ class AutofocusJob:
             if not np.isfinite(level).any():
                 level[tg.nft.t] = float(np.nanmedian(self.held)) if np.isfinite(self.held).any() else 0.0
             pts.append(PullTarget(tg.nft.t, level, known_at=tg.nft.known_at, lost_from=tg.lost_from,
-                                  aperture=tg.nft.aperture))
+                                  aperture=tg.nft.aperture, pull_frames=tg.nft.pull_frames,
+                                  lead_frames=tg.nft.lead_frames))
         composed = compose_track(pts, self.n, s.pull, aperture=s.aperture)
         keys = keyframes(composed.focus, composed.aperture, tol=s.keyframe_tol)
         tracking = []
@@ -487,9 +525,12 @@ class AutofocusJob:
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
                     "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
                     "timings_s": {k: round(v, 3) for k, v in self._timings.items()}}
+        inv = 1.0 / self.scale
+        boxes = [{k: (tuple(float(v) * inv for v in b), ok) for k, (b, ok) in sorted(t.boxes.items())}
+                 for t in self.targets]
         return AutofocusResult(composed.focus, composed.aperture, keys, [t.nft for t in self.targets], tracking,
                                {"raw": self.raw, "held": self.held}, metrics, composed, self.clip, self.start,
-                               settings, seconds)
+                               settings, seconds, boxes)
 
     def run(self, progress: bool = True) -> AutofocusResult:
         """Run to the end (tqdm progress bar when ``progress``); returns the result."""

@@ -36,6 +36,8 @@ class NFT:
     known_at: first frame on which the system knew of it (look-ahead: before t; causal: after
     t; manual: 0). confidence: 0..1. aperture: aperture scale to reach with this target, or
     None to keep the current one. subject: optional label (e.g. a face-track id).
+    pull_frames / lead_frames: this target's pull length and lead (frames), or None for the
+    puller's defaults.
     """
 
     x: float
@@ -48,6 +50,8 @@ class NFT:
     aperture: float | None = None
     subject: str | None = None
     detail: dict = field(default_factory=dict, compare=False)
+    pull_frames: Frames | None = None
+    lead_frames: Frames | None = None
 
     @property
     def act_at(self) -> Frames:
@@ -61,6 +65,9 @@ class NFT:
         d["x"], d["y"] = round(float(self.x), 3), round(float(self.y), 3)
         if not d["detail"]:
             d.pop("detail")
+        for key in ("pull_frames", "lead_frames"):
+            if d[key] is None:
+                d.pop(key)
         return d
 
 
@@ -164,8 +171,15 @@ def nft_from_dict(d: Any, i: int, where: str, width: int | None = None, height: 
         aperture = _number(aperture, "aperture", name)
         if aperture < 0:
             raise InputError(f"{name}: aperture {aperture} must be >= 0 (0 = no defocus).")
+    pulls = {}
+    for key, low in (("pull_frames", 1), ("lead_frames", 0)):
+        if d.get(key) is not None:
+            value = _number(d[key], key, name)
+            if value != int(value) or value < low:
+                raise InputError(f"{name}: {key} {d[key]!r} must be a whole number >= {low} (frames).")
+            pulls[key] = int(value)
     return NFT(x=x, y=y, t=int(t), box=box, source=source, known_at=int(d.get("known_at", 0) or 0),
-               confidence=float(d.get("confidence", 1.0)), aperture=aperture, subject=d.get("subject"))
+               confidence=float(d.get("confidence", 1.0)), aperture=aperture, subject=d.get("subject"), **pulls)
 
 
 def load_nfts(path: str | Path, width: int | None = None, height: int | None = None) -> list[NFT]:

@@ -85,7 +85,8 @@ class PullTarget:
     t: its NFT frame (0-based). level: (n,) focus disparity per frame (DESIGN units); NaN where
     unknown (held from the nearest known frame). known_at: first frame the pull may start.
     lost_from: first frame of a permanent tracking loss, or None. aperture: aperture scale to
-    reach with this target (None: keep the current one).
+    reach with this target (None: keep the current one). pull_frames / lead_frames: this
+    target's pull length and lead in frames (None: the PullSettings defaults).
     """
 
     t: int
@@ -93,6 +94,8 @@ class PullTarget:
     known_at: int = 0
     lost_from: int | None = None
     aperture: float | None = None
+    pull_frames: int | None = None
+    lead_frames: int | None = None
 
 
 @dataclass
@@ -135,9 +138,12 @@ def schedule_pulls(targets: list[PullTarget], settings: PullSettings) -> list[Pu
     settings.check()
     pulls: list[Pull] = []
     prev_end = 0
-    P, lead = settings.pull_frames, settings.lead_frames
     for i in range(1, len(targets)):
         tg, prev = targets[i], targets[i - 1]
+        P = settings.pull_frames if tg.pull_frames is None else int(tg.pull_frames)
+        lead = settings.lead_frames if tg.lead_frames is None else int(tg.lead_frames)
+        if P < 1 or lead < 0:
+            raise ValueError(f"target at frame {tg.t}: pull_frames={P} must be >= 1 and lead_frames={lead} >= 0")
         end = tg.t - lead
         start = end - P
         notes = []
@@ -147,14 +153,14 @@ def schedule_pulls(targets: list[PullTarget], settings: PullSettings) -> list[Pu
             notes.append(f"target {i - 1} lost at frame {prev.lost_from}: released after {settings.hold_frames} frames")
         if start < prev_end:
             start = prev_end
-            end = max(end, start + settings.min_pull_frames)
+            end = max(end, start + min(settings.min_pull_frames, P))
             notes.append("crowded: starts when the previous pull ends")
         if tg.known_at > start:
             start = tg.known_at
             end = start + P
             notes.append(f"known at frame {tg.known_at}: late")
         start = max(start, 0)
-        end = max(end, start + settings.min_pull_frames)
+        end = max(end, start + min(settings.min_pull_frames, P))
         pulls.append(Pull(i, start, end, "; ".join(notes), planned_end=tg.t - lead))
         prev_end = end
     return pulls

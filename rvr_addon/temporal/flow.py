@@ -108,9 +108,16 @@ def remap(image: np.ndarray, maps: np.ndarray, border: str = "replicate", neares
     Bilinear, or the nearest pixel with ``nearest=True``: for disparity, so a sample on a
     depth edge takes one side's value instead of a blend no surface has ("flying pixels").
     """
+    if maps.shape[0] >= _REMAP_MAX_ROWS:  # OpenCV's remap takes fewer than SHRT_MAX rows: e.g. the
+        # (N, 1, 2) point lists of the E fusion, N = every pixel of a bright 360p frame
+        return np.concatenate([remap(image, maps[i:i + _REMAP_MAX_ROWS - 1], border, nearest)
+                               for i in range(0, maps.shape[0], _REMAP_MAX_ROWS - 1)], axis=0)
     mode = cv2.BORDER_REPLICATE if border == "replicate" else cv2.BORDER_CONSTANT
     interp = cv2.INTER_NEAREST if nearest else cv2.INTER_LINEAR
     return cv2.remap(image, maps, None, interp, borderMode=mode, borderValue=0)
+
+
+_REMAP_MAX_ROWS = 32767  # SHRT_MAX
 
 
 def concat(f_ab: np.ndarray, f_bc: np.ndarray) -> np.ndarray:

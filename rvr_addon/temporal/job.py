@@ -34,12 +34,19 @@ log = logging.getLogger(__name__)
 @dataclass
 class StabilizeSettings:
     """What ``rvr stabilize`` takes: the cache folder, the video for the flow (None = the
-    source recorded in meta.json), the filter settings, and force (recompute every frame)."""
+    source recorded in meta.json), the filter settings, and force (recompute every frame).
+
+    start / stop: stabilize only the frames start..stop-1 (0-based clip indices; stop None =
+    to the end). The window still reads the P frames before and the F frames after them from
+    the cache, so the result equals a run over the whole clip (``rvr batch`` chunks a clip so).
+    """
 
     cache: Path
     input: Path | None = None
     temporal: TemporalSettings = field(default_factory=TemporalSettings)
     force: bool = False
+    start: int = 0
+    stop: int | None = None
 
 
 def segments(indices: list[int]) -> list[tuple[int, int]]:
@@ -88,12 +95,15 @@ class StabilizeJob:
         if s.force:
             self.cache.stabilized = None
         self.cache.begin_stabilized(record)
-        self.todo = {i for i in indices if not self.cache.has_stabilized(i)}
+        stop = indices[-1] + 1 if s.stop is None else s.stop
+        if s.start < 0 or stop <= s.start:
+            raise InputError(f"stabilize range {s.start}..{stop} is empty; give 0 <= start < stop")
+        self.todo = {i for i in indices if s.start <= i < stop and not self.cache.has_stabilized(i)}
         self.plan: list[tuple[int, int]] = []  # (stream start, stop) per segment with work
         for a, b in segments(indices):
             missing = [i for i in range(a, b) if i in self.todo]
-            if missing:
-                self.plan.append((max(a, missing[0] - s.temporal.past), b))
+            if missing:  # P frames of warm-up before, F frames of future after
+                self.plan.append((max(a, missing[0] - s.temporal.past), min(b, missing[-1] + 1 + s.temporal.future)))
         self.total = sum(b - a for a, b in self.plan)
         self.done = 0
         self.written = 0

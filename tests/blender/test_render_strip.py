@@ -49,19 +49,13 @@ def _keys(fcurve):
     return [tuple(k.co) for k in fcurve.keyframe_points]
 
 
-class _OperatorStub:
-    """Stands in for the operator instance to call execute() directly and see its reports."""
+def _OperatorStub():
+    """Stands in for the operator instance to call execute()/modal() directly and see its reports."""
+    from rvr_laaf.operators.ops_render import RVR_OT_render_strip
 
-    def __init__(self):
-        self.reports = []
+    from conftest import OperatorStub
 
-    def report(self, level, message):
-        self.reports.append((set(level), message))
-
-    def __getattr__(self, name):  # _prepare, _apply: the operator's own methods
-        from rvr_laaf.operators.ops_render import RVR_OT_render_strip
-
-        return getattr(RVR_OT_render_strip, name).__get__(self)
+    return OperatorStub(RVR_OT_render_strip)
 
 
 def _decode(path):
@@ -217,7 +211,7 @@ def test_modal_steps_on_timer_and_finishes(registered, factory_scene, image_stri
 
 @pytest.mark.parametrize("how", ["esc", "cancel_operator"])
 def test_modal_cancel_changes_nothing(registered, factory_scene, image_strip, tmp_path, how, monkeypatch):
-    monkeypatch.setattr(registered.operators.ops_render, "STEP_BUDGET_S", 0.0)  # one frame per timer tick
+    monkeypatch.setattr(registered.operators.jobrun, "STEP_BUDGET_S", 0.0)  # one frame per timer tick
     out = tmp_path / "renders" / "Clip.mp4"
     out.parent.mkdir()
     out.write_bytes(b"earlier render")

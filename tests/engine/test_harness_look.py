@@ -128,7 +128,7 @@ def test_config_hash_of_the_original_look_is_unchanged():
     """Clips generated before the looks existed keep their hash (they resume, not regenerate)."""
     cfg = GenerateConfig(seed=7).validated()
     legacy = {k: v for k, v in cfg.to_dict().items()
-              if k not in ("style", "lighting", "textures", "texture_cache", "tilt_deg")}
+              if k not in ("style", "lighting", "textures", "texture_cache", "tilt_deg", "dof")}
     blob = json.dumps({"config": legacy, "format": FORMAT, "harness": HARNESS_VERSION, "blender": "5.0.1"},
                       sort_keys=True)
     assert cfg.config_hash("5.0.1") == hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -141,6 +141,7 @@ def test_config_hash_of_the_original_look_is_unchanged():
     assert moved.config_hash("5.0.1", "aa") == photo.config_hash("5.0.1", "aa")  # paths are not identity
     assert GenerateConfig(seed=7, tilt_deg=(0.5, 2.5)).validated().config_hash("5.0.1") == cfg.config_hash("5.0.1")
     assert GenerateConfig(seed=7, tilt_deg=(-14, 0)).validated().config_hash("5.0.1") != cfg.config_hash("5.0.1")
+    assert GenerateConfig(seed=7, dof=False).validated().config_hash("5.0.1") != cfg.config_hash("5.0.1")
 
 
 def test_camera_tilt_range():

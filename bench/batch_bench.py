@@ -1,0 +1,134 @@
+"""rvr batch throughput: frames per second for 1 and 2 local worker processes.
+
+    .venv/bin/python bench/batch_bench.py [--clips 4] [--frames 48] [--size 640x360] [--chunk-frames 24]
+                                          [--workers 1 2] [--weights W] [--quick]
+
+Input: ``--clips`` clips of ``--frames`` frames at ``--size``, cut from consecutive stretches
+of ``../shared/data/clips/visualvoice_interview.mp4`` (a TV interview: faces, speech; 25 fps)
+with their audio; without ../shared/data, ffmpeg's testsrc2 pattern with a tone. Weights:
+``--weights``, else an UNTRAINED estimator of the shipped architecture exported to a temp
+folder (no trained weights exist yet; inference costs the same). For each worker count a
+fresh LocalCluster (processes, 1 thread each, torch/OpenCV 1 thread per task) runs the whole
+batch (estimate, stabilize, autofocus with the conversation preset, render, MP4 encode) into
+a fresh output folder, so nothing is reused. ``batch.workersN.fps`` = frames of all clips /
+wall time from the first task to the last result (cluster start-up excluded, reported as
+``batch.workersN.startup_s``). ``batch.task.<stage>.<size>.s_per_frame`` (wall) and
+``.cpu_s_per_frame`` (CPU of the worker process and its ffmpeg children: robust to other load
+on the machine) are the summed task times per frame of the 1-worker run (one core per task):
+the per-frame costs a cluster plan scales up (docs/batch.md); ``batch.cache.<size>.mb_per_frame`` the per-clip cache on disk
+(raw + stabilized channels). Tables go to stderr; the last stdout line is DESIGN.md's flat JSON.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+CLIP = ROOT.parent / "shared" / "data" / "clips" / "visualvoice_interview.mp4"
+
+
+def make_clips(src: Path, n: int, frames: int, size: tuple[int, int], folder: Path) -> list[Path]:
+    """n H.264 + AAC clips of ``frames`` frames each at ``size`` (consecutive stretches of src)."""
+    import imageio_ffmpeg
+
+    ff = imageio_ffmpeg.get_ffmpeg_exe()
+    folder.mkdir(parents=True, exist_ok=True)
+    w, h = size
+    clips = []
+    for i in range(n):
+        out = folder / f"clip{i:02d}.mp4"
+        if src.is_file():
+            inputs = ["-ss", f"{i * frames / 25.0:.3f}", "-i", str(src)]
+        else:
+            inputs = ["-f", "lavfi", "-i", f"testsrc2=size={w}x{h}:rate=25", "-f", "lavfi",
+                      "-i", f"sine=frequency={300 + 50 * i}"]
+        cmd = [ff, "-hide_banner", "-v", "error", "-y", *inputs, "-frames:v", str(frames),
+               "-vf", f"scale={w}:{h},setsar=1", "-r", "25", "-c:v", "libx264", "-preset", "veryfast", "-crf", "18",
+               "-pix_fmt", "yuv420p", "-c:a", "aac", "-shortest", str(out)]
+        subprocess.run(cmd, check=True)
+        clips.append(out)
+    return clips
+
+
+def size_label(size: tuple[int, int]) -> str:
+    return f"{size[1]}p" if size[1] in (360, 720, 1080, 2160) else f"{size[0]}x{size[1]}"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--clips", type=int, default=4)
+    ap.add_argument("--frames", type=int, default=48, help="frames per clip")
+    ap.add_argument("--size", default="640x360", help="WxH of the clips (default 640x360)")
+    ap.add_argument("--chunk-frames", type=int, default=24)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--weights", type=Path, help="estimator weights (default: an untrained export)")
+    ap.add_argument("--clip", type=Path, default=CLIP, help="source video the clips are cut from")
+    ap.add_argument("--quick", action="store_true", help="2 clips of 12 frames at 160x90 (checks the plumbing)")
+    args = ap.parse_args()
+    if args.quick:
+        args.clips, args.frames, args.size, args.chunk_frames = 2, 12, "160x90", 6
+    size = tuple(int(v) for v in args.size.lower().split("x"))
+
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    from rvr_addon.batch.graph import run_batch
+    from rvr_addon.batch.settings import BatchSettings
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)
+    out: dict[str, float] = {}
+    label = size_label(size)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        clips = make_clips(args.clip, args.clips, args.frames, size, tmp / "clips")
+        weights = args.weights
+        if weights is None:
+            import torch
+
+            from rvr_addon.estimate.train import export_weights
+            from rvr_addon.estimate.unet import EstimatorNet
+
+            torch.manual_seed(0)
+            weights = export_weights(EstimatorNet(), tmp / "untrained.pt", iterations=0, wall_time_s=0.0,
+                                     training={"note": "benchmark only: untrained, same cost as trained"})
+        for n in args.workers:
+            import time
+
+            t0 = time.perf_counter()
+            with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, \
+                    Client(cluster) as client:
+                startup = time.perf_counter() - t0
+                settings = BatchSettings(output=tmp / f"out{n}", weights=weights, chunk_frames=args.chunk_frames)
+                report = run_batch(clips, settings, client=client, progress=False)
+            print(f"--- {n} worker(s), {len(clips)} clips x {args.frames} frames at {args.size}\n{report.table()}",
+                  file=sys.stderr)
+            if report.count("failed"):
+                print("batch_bench: clips failed (see the table)", file=sys.stderr)
+                return 1
+            out[f"batch.workers{n}.fps"] = round(report.fps, 4)
+            out[f"batch.workers{n}.startup_s"] = round(startup, 2)
+            out[f"batch.workers{n}.wall_s"] = round(report.wall_s, 2)
+            if n == min(args.workers):
+                cache_bytes = sum(f.stat().st_size for f in settings.caches.rglob("frame_*.exr"))
+                out[f"batch.cache.{label}.mb_per_frame"] = round(cache_bytes / 2**20 / report.frames_done, 3)
+                cpu = report.stage_seconds_per_frame(cpu=True)
+                for stage, s in report.stage_seconds_per_frame().items():
+                    key = f"batch.task.{stage.replace(' ', '_')}.{label}"
+                    out[f"{key}.s_per_frame"] = round(s, 5)
+                    out[f"{key}.cpu_s_per_frame"] = round(cpu.get(stage, 0.0), 5)
+        if "batch.workers1.fps" in out and "batch.workers2.fps" in out:
+            out["batch.speedup_2_vs_1"] = round(out["batch.workers2.fps"] / max(out["batch.workers1.fps"], 1e-9), 3)
+        out[f"batch.{label}.frames"] = args.clips * args.frames
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,327 @@
+"""AF-Net inference: weights, the streaming runner, and New Focus Targets from its outputs.
+
+:func:`load_afnet` reads exported weights (``rvr train-afnet``; default
+``rvr_addon/afnet/weights/afnet.pt``, none shipped yet) with ``torch.load(weights_only=True)``.
+
+:class:`AFNetStream` takes a clip's frames in order (:func:`.model.encode_frame` bytes) and
+evaluates a query every ``stride`` frames (q = 0, stride, 2 stride, ...) as soon as the frames
+it sees are in: frame ``min(q + half_span, n - 1)``. CNN-1 outputs are cached by unit centre,
+so a query costs one CNN-1 and one CNN-2 pass; frames and features no query needs any more are
+dropped (the stream holds about ``span + stride`` frames). Frames before 0 or after the last
+repeat the first/last frame (padding); a clip shorter than the receptive field is padded the
+same way, with a warning (:func:`check_length`).
+
+NFTs (:func:`pick_peaks`): local maxima of P over the queries that reach ``threshold``, at least
+``min_gap`` frames apart (non-maximum suppression), refined between the grid points by a
+parabola through the peak and its neighbours; frame 0 is the initial focus, never an NFT. The
+focus region of an NFT (:func:`region_from_map`) is read from the map of the first unit centre
+at least one stride after it (:meth:`AFNetStream.region_frame`: where the focus goes, not the
+target before the change, which a peak a few frames early would still show): the part of the
+map above half its maximum that holds the maximum, its bounding box and probability-weighted
+centroid. :func:`predict_clip` runs a whole clip at once (tests, tools).
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from .model import AFNet, AFNetConfig, decode_frames, map_to_prob
+
+log = logging.getLogger(__name__)
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "afnet.pt"
+WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
+
+
+def load_afnet(path: str | Path | None = None) -> tuple[AFNet, dict]:
+    """(model in eval mode, header dict) from an exported weights file (default: the shipped one).
+
+    Raises InputError naming the path and the command that makes the file when it is missing,
+    unreadable, of another format or of another architecture."""
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    make = ("train them with `rvr train-afnet --data DATASET -o RUN` (scripts/afnet_data.sh makes the data) "
+            f"and pass --afnet-weights RUN/afnet.pt, or copy RUN/afnet.pt to {DEFAULT_WEIGHTS}; the presets "
+            "action, conversation, faces and salient work without AF-Net")
+    if not path.is_file():
+        raise InputError(f"AF-Net weights '{path}' not found: {make}")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as ex:  # noqa: BLE001 - any unpickling failure means a corrupt or foreign file
+        raise InputError(f"AF-Net weights '{path}' cannot be read ({type(ex).__name__}: {ex}); {make}") from ex
+    if not isinstance(ck, dict) or ck.get("format") != WEIGHTS_FORMAT:
+        raise InputError(f"'{path}' is not an AF-Net weights file ({WEIGHTS_FORMAT}; a checkpoint.pt is not one: "
+                         f"use the run's afnet.pt); {make}")
+    try:
+        header = json.loads(ck["header"])
+        model = AFNet(AFNetConfig.from_dict(header["config"]))
+        model.load_state_dict(ck["state_dict"])
+    except (KeyError, ValueError, RuntimeError) as ex:
+        raise InputError(f"AF-Net weights '{path}' do not fit this version's network ({ex}); retrain with "
+                         "`rvr train-afnet`") from ex
+    model.eval()
+    return model, header
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None):
+    """Run the block with ``n`` torch CPU threads (None: as set), then restore the setting.
+
+    A query is a few small convolutions: on a busy 2-core machine two threads spin against the
+    other jobs and were 9x slower than one (0.31 s vs 2.8 s for a 40-frame test clip)."""
+    old = torch.get_num_threads()
+    if n is None or n == old:
+        yield
+        return
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+def check_length(n_frames: int, config: AFNetConfig, what: str = "the clip") -> bool:
+    """Warn (and return True) when a clip is shorter than AF-Net's receptive field."""
+    if n_frames < config.span:
+        log.warning("%s has %d frames, fewer than AF-Net's receptive field of %d frames (%d sampled frames, every "
+                    "%d): the first/last frame is repeated to fill it (padding); expect weaker predictions",
+                    what, n_frames, config.span, config.frames_seen, config.sample_step)
+        return True
+    return False
+
+
+@dataclass
+class Peak:
+    """An NFT found by :func:`pick_peaks`: frame t (refined), query frame q of the peak, P there."""
+
+    t: int
+    q: int
+    p: float
+
+
+def pick_peaks(queries: list[int], probs: list[float], threshold: float = 0.5, min_gap: int = 12,
+               final_upto: int | None = None, after: int = -10 ** 9) -> list[Peak]:
+    """NFTs from P at query frames (module docstring).
+
+    queries: increasing query frames; probs: P at each. A peak at q is decided only when the
+    queries reach q + min_gap or ``final_upto`` is None (all known). after: the frame of the
+    last accepted peak (peaks within min_gap of it are suppressed). Returns peaks in order."""
+    qs = np.asarray(queries, np.int64)
+    ps = np.asarray(probs, np.float64)
+    out: list[Peak] = []
+    last = after
+    for i, (q, p) in enumerate(zip(qs, ps)):
+        if p < threshold or q < 1:
+            continue
+        if final_upto is not None and q + min_gap > final_upto:
+            break
+        near = (np.abs(qs - q) <= min_gap)
+        # a strict maximum over the earlier neighbours, at least equal to the later ones
+        if np.any(ps[near & (qs < q)] >= p) or np.any(ps[near & (qs > q)] > p):
+            continue
+        if q - last < min_gap:
+            continue
+        t = float(q)
+        if 0 < i < len(qs) - 1:
+            a, b = ps[i - 1], ps[i + 1]
+            den = a - 2 * p + b
+            if den < 0:
+                t = q + float(np.clip(0.5 * (a - b) / den, -0.5, 0.5)) * float(qs[i + 1] - qs[i])
+        peak = Peak(max(1, int(round(t))), int(q), float(p))
+        out.append(peak)
+        last = int(q)
+    return out
+
+
+@dataclass
+class MapRegion:
+    """A focus region from a map, in px of a frame of ``size``: point (x, y), box (x, y, w, h),
+    boolean mask (h, w) at that size."""
+
+    x: float
+    y: float
+    box: tuple[float, float, float, float]
+    mask: np.ndarray
+
+
+def region_from_map(prob: np.ndarray, size: tuple[int, int]) -> MapRegion:
+    """The focus region of a map (module docstring) in a frame of size (w, h) px."""
+    import cv2
+
+    mh, mw = prob.shape
+    w, h = size
+    peak = np.unravel_index(int(np.argmax(prob)), prob.shape)
+    top = float(prob[peak])
+    sel = (prob >= 0.5 * top).astype(np.uint8) if top > 0 else np.ones_like(prob, np.uint8)
+    _, comp = cv2.connectedComponents(sel, connectivity=8)
+    region = comp == comp[peak]
+    ys, xs = np.nonzero(region)
+    wgt = prob[ys, xs].astype(np.float64) + 1e-12
+    sx, sy = w / mw, h / mh
+    cx = float((wgt * (xs + 0.5)).sum() / wgt.sum()) * sx
+    cy = float((wgt * (ys + 0.5)).sum() / wgt.sum()) * sy
+    box = (float(xs.min()) * sx, float(ys.min()) * sy, float(xs.max() - xs.min() + 1) * sx,
+           float(ys.max() - ys.min() + 1) * sy)
+    mask = cv2.resize(region.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST).astype(bool)
+    return MapRegion(cx, cy, box, mask)
+
+
+class AFNetStream:
+    """Streaming AF-Net over one clip of ``n_frames`` frames (module docstring).
+
+    ``push(codes)`` adds the next frame ((C, H, W) uint8 from :func:`.model.encode_frame`);
+    ``finish()`` after the last one. ``probs`` (query frame -> P) and ``maps`` (unit centre
+    frame -> (h, w) map distribution) fill as queries run; ``take_peaks()`` returns the NFTs
+    that became certain. ``threads``: torch threads while a query runs (None: torch's setting).
+    """
+
+    def __init__(self, model: AFNet, n_frames: int, threshold: float = 0.5, min_gap: int = 12,
+                 threads: int | None = 1) -> None:
+        if n_frames < 1:
+            raise InputError("AF-Net needs a clip of at least one frame")
+        self.model = model.eval()
+        self.config = model.config
+        self.n = int(n_frames)
+        self.threshold = float(threshold)
+        self.min_gap = int(min_gap)
+        self.threads = threads
+        cfg = self.config
+        self.queries = list(range(0, self.n, cfg.stride))
+        self._frames: dict[int, np.ndarray] = {}
+        self._units: dict[int, torch.Tensor] = {}
+        self.probs: dict[int, float] = {}
+        self.maps: dict[int, np.ndarray] = {}
+        self.pushed = 0
+        self.finished = False
+        self._next_q = 0
+        self._last_peak = -10 ** 9
+        self._decided_upto = -1
+        half = (cfg.f_t - 1) // 2
+        self._unit_frames = (np.arange(cfg.f_t) - half) * cfg.sample_step
+        self.padded = check_length(self.n, cfg)
+
+    def push(self, codes: np.ndarray) -> None:
+        """Add the next frame (in order) and run every query whose frames are now in."""
+        if self.pushed >= self.n:
+            raise InputError(f"AF-Net stream: frame {self.pushed} pushed but the clip has {self.n} frames")
+        self._frames[self.pushed] = codes
+        self.pushed += 1
+        with torch_threads(self.threads):
+            self._run(final=False)
+
+    def finish(self) -> None:
+        """End of the clip: run the remaining queries."""
+        with torch_threads(self.threads):
+            self._run(final=True)
+        self.finished = True
+
+    def _frame(self, k: int) -> np.ndarray:
+        return self._frames[min(max(k, 0), self.n - 1)]
+
+    def _unit(self, c: int) -> torch.Tensor:
+        if c not in self._units:
+            x = np.stack([self._frame(c + int(o)) for o in self._unit_frames])[None]
+            with torch.inference_mode():
+                feat, m = self.model.unit(decode_frames(x, self.config))
+            self._units[c] = feat[0]
+            self.maps[c] = map_to_prob(m)[0].numpy().astype(np.float32)
+        return self._units[c]
+
+    def _run(self, final: bool) -> None:
+        cfg = self.config
+        while self._next_q < len(self.queries):
+            q = self.queries[self._next_q]
+            need = min(q + cfg.half_span, self.n - 1)
+            if not final and need >= self.pushed:
+                break
+            feats = torch.stack([self._unit(q + int(o)) for o in cfg.unit_offsets])[None]
+            with torch.inference_mode():
+                self.probs[q] = float(torch.sigmoid(self.model.head(feats))[0])
+            self._next_q += 1
+            # forget what no later query needs
+            lo = q + cfg.stride - cfg.half_span
+            for k in [k for k in self._frames if 0 < k < lo]:  # frame 0 stays: it pads the start
+                del self._frames[k]
+            for c in [c for c in self._units if c < lo - cfg.sample_step * cfg.f_t]:
+                del self._units[c]
+
+    def take_peaks(self, final: bool | None = None) -> list[Peak]:
+        """NFT peaks that became certain since the last call (all remaining ones when the
+        stream is finished, or ``final``)."""
+        done = [q for q in self.queries if q in self.probs]
+        if not done:
+            return []
+        final = self.finished if final is None else final
+        ps = [self.probs[q] for q in done]
+        upto = None if final else done[-1]
+        peaks = [p for p in pick_peaks(done, ps, self.threshold, self.min_gap, upto, self._last_peak)
+                 if p.q > self._decided_upto]
+        if peaks:
+            self._last_peak = peaks[-1].q
+            self._decided_upto = peaks[-1].q
+        return peaks
+
+    def region_frame(self, t: int) -> int | None:
+        """The unit centre whose map gives the region of an NFT at t: the first computed centre
+        >= t + stride (else the last one before it); None before any map."""
+        if not self.maps:
+            return None
+        later = [c for c in self.maps if c >= t + self.config.stride and c < self.n]
+        if later:
+            return min(later)
+        return max(c for c in self.maps if c < self.n) if any(c < self.n for c in self.maps) else max(self.maps)
+
+    def map_at(self, frame: int) -> np.ndarray | None:
+        """The map distribution of the computed unit centre nearest ``frame`` (None before any)."""
+        if not self.maps:
+            return None
+        c = min(self.maps, key=lambda k: (abs(k - frame), k))
+        return self.maps[c]
+
+    def forget_maps_before(self, frame: int) -> None:
+        """Drop maps of unit centres more than a stride before ``frame`` (bounded memory)."""
+        for c in [c for c in self.maps if c < frame - self.config.stride * self.config.f_t]:
+            del self.maps[c]
+
+
+@dataclass
+class ClipPrediction:
+    """Whole-clip AF-Net output: P per query frame, maps per unit centre, NFT peaks and their
+    regions (px of ``size``)."""
+
+    probs: dict[int, float]
+    maps: dict[int, np.ndarray]
+    peaks: list[Peak]
+    regions: list[MapRegion] = field(default_factory=list)
+    padded: bool = False
+
+
+def predict_clip(model: AFNet, frames: Iterable[np.ndarray], disparities: Iterable[np.ndarray | None] | None = None,
+                 n_frames: int | None = None, threshold: float = 0.5, min_gap: int = 12) -> ClipPrediction:
+    """Run AF-Net over a clip: frames (H, W, 3) uint8 RGB (and optional disparity maps, any size)."""
+    frames = list(frames)
+    disp = list(disparities) if disparities is not None else [None] * len(frames)
+    n = n_frames or len(frames)
+    stream = AFNetStream(model, n, threshold, min_gap)
+    for rgb, d in zip(frames, disp):
+        from .model import encode_frame
+
+        stream.push(encode_frame(rgb, d, model.config))
+    stream.finish()
+    peaks = stream.take_peaks(final=True)
+    h, w = frames[0].shape[:2]
+    regions = [region_from_map(stream.maps[stream.region_frame(p.t)], (w, h)) for p in peaks]
+    return ClipPrediction(dict(stream.probs), dict(stream.maps), peaks, regions, stream.padded)
+
+
+def nft_min_gap(fps: float) -> int:
+    """Default smallest distance between two AF-Net NFTs: half a second of frames (at least 5)."""
+    return max(5, int(math.ceil(0.5 * fps)))

@@ -1,0 +1,298 @@
+"""AF-Net (paper section 5.3, Fig. 8): focus-region maps and the New Focus Target probability.
+
+Time. The clip is sampled every ``sample_step`` frames (paper: 5). A query at clip frame ``q``
+sees ``L = s * f_T`` sampled frames at ``q + j * sample_step``, ``j = -(L-1)/2 .. (L-1)/2``
+(frames outside the clip repeat the first/last frame: padding). They form ``s`` temporal
+units of ``f_T`` consecutive sampled frames; unit ``u`` is centred on clip frame
+``q + (u - (s-1)/2) * f_T * sample_step``.
+
+- **CNN-1** (ResNet-10-like: a stem and four basic blocks) sees one unit (temporal receptive
+  field ``f_T`` sampled frames, stacked as channels: early fusion) and predicts the
+  focus-region map ``M`` of the unit's centre frame (logits at 1/4 of the input size; a
+  spatial softmax makes it a distribution) and a feature map at 1/8.
+- **CNN-2** (ResNet-10-like, then global average pooling and a linear layer) takes the ``s``
+  feature maps of CNN-1 and predicts the logit of ``P``, the probability that the centre
+  frame ``q`` is a New Focus Target; it sees ``s * f_T`` sampled frames.
+
+At inference, queries are taken every ``stride`` clip frames (paper: 5) and CNN-1's output of
+a unit is cached by its centre frame, so each new query costs one CNN-1 pass and one CNN-2
+pass (:mod:`.infer`).
+
+Input per sampled frame (``input_channels``): RGB (or gray) in [-0.5, 0.5] at
+``width x height`` px (default 128x72; multiples of 8) and, with ``disparity``, one channel
+of the frame's disparity normalised per frame (:func:`normalise_disparity`: median removed,
+divided by the 10-90 % spread, clipped to +-3), so the offset and scale of an estimated
+disparity do not matter.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+Frames = int
+
+
+@dataclass(frozen=True)
+class AFNetConfig:
+    """Hyper-parameters of AF-Net (see the module docstring).
+
+    width, height: network input size in px (multiples of 8). rgb: colour (3 channels) or
+    gray (1). disparity: add the normalised disparity channel. f_t: sampled frames per
+    temporal unit (odd). s: temporal units (odd). sample_step: clip frames between sampled
+    frames. stride: clip frames between queries at inference. widths1: CNN-1 channels of its
+    four blocks. widths2: CNN-2 channels (reduction, then three blocks).
+    """
+
+    width: int = 128
+    height: int = 72
+    rgb: bool = True
+    disparity: bool = True
+    f_t: int = 3
+    s: int = 3
+    sample_step: int = 5
+    stride: int = 5
+    widths1: tuple[int, ...] = (32, 48, 64, 96)
+    widths2: tuple[int, ...] = (64, 64, 96, 128)
+
+    def check(self) -> "AFNetConfig":
+        """Raise ValueError naming the bad hyper-parameter; returns self."""
+        if self.width % 8 or self.height % 8 or self.width < 16 or self.height < 16:
+            raise ValueError(f"AF-Net input {self.width}x{self.height}: width and height must be multiples of 8, >= 16")
+        if self.f_t < 1 or self.f_t % 2 == 0 or self.s < 1 or self.s % 2 == 0:
+            raise ValueError(f"AF-Net f_t={self.f_t}, s={self.s}: both must be odd and >= 1 (a centre frame)")
+        if self.sample_step < 1 or self.stride < 1:
+            raise ValueError(f"AF-Net sample_step={self.sample_step}, stride={self.stride}: must be >= 1")
+        if len(self.widths1) != 4 or len(self.widths2) != 4 or min(self.widths1 + self.widths2) < 1:
+            raise ValueError("AF-Net widths1 and widths2 need 4 positive channel counts each")
+        return self
+
+    @property
+    def channels(self) -> int:
+        """Input channels of one sampled frame."""
+        return (3 if self.rgb else 1) + (1 if self.disparity else 0)
+
+    @property
+    def frames_seen(self) -> int:
+        """L = s * f_T sampled frames seen by one query."""
+        return self.s * self.f_t
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(L,) clip-frame offsets of the sampled frames of a query, relative to the query."""
+        half = (self.frames_seen - 1) // 2
+        return (np.arange(self.frames_seen) - half) * self.sample_step
+
+    @property
+    def unit_offsets(self) -> np.ndarray:
+        """(s,) clip-frame offsets of the unit centres relative to the query."""
+        return (np.arange(self.s) - (self.s - 1) // 2) * self.f_t * self.sample_step
+
+    @property
+    def span(self) -> Frames:
+        """Temporal receptive field of a query in clip frames: (L - 1) * sample_step + 1."""
+        return (self.frames_seen - 1) * self.sample_step + 1
+
+    @property
+    def half_span(self) -> Frames:
+        """Clip frames a query looks ahead (and back)."""
+        return (self.span - 1) // 2
+
+    @property
+    def map_size(self) -> tuple[int, int]:
+        """(w, h) of the focus-region map: 1/4 of the input."""
+        return self.width // 4, self.height // 4
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict (tuples become lists)."""
+        d = asdict(self)
+        d["widths1"], d["widths2"] = list(self.widths1), list(self.widths2)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "AFNetConfig":
+        """Inverse of :meth:`to_dict`; unknown keys are a ValueError (another architecture)."""
+        known = {f.name for f in fields(cls)}
+        extra = set(data) - known
+        if extra:
+            raise ValueError(f"unknown AF-Net hyper-parameters {sorted(extra)}")
+        d = dict(data)
+        for key in ("widths1", "widths2"):
+            if key in d:
+                d[key] = tuple(int(v) for v in d[key])
+        return cls(**d).check()
+
+
+def normalise_disparity(d: np.ndarray) -> np.ndarray:
+    """Per-frame normalised disparity for the network.
+
+    d: (h, w) float disparity in any unit and offset (DESIGN units, an estimate, ...).
+    Returns (h, w) float32: (d - median) / (p90 - p10), clipped to [-3, 3]; 0 for a flat or
+    non-finite frame.
+    """
+    d = np.asarray(d, np.float32)
+    ok = np.isfinite(d)
+    if not ok.any():
+        return np.zeros(d.shape, np.float32)
+    lo, med, hi = np.percentile(d[ok], (10, 50, 90))
+    spread = float(hi - lo)
+    if not np.isfinite(spread) or spread < 1e-6:
+        return np.zeros(d.shape, np.float32)
+    out = np.where(ok, (d - med) / spread, 0.0)
+    return np.clip(out, -3.0, 3.0).astype(np.float32)
+
+
+DISPARITY_CODE_SCALE = 40.0
+"""Normalised disparity d is stored as the byte ``round(40 d) + 128`` (steps of 0.025)."""
+
+
+def encode_frame(rgb: np.ndarray, disparity: np.ndarray | None, config: AFNetConfig) -> np.ndarray:
+    """One frame as the network's input channels, as bytes (training data and inference share it).
+
+    rgb: (H, W, 3) uint8 sRGB, any size. disparity: (H', W') float (any size, any unit) or None
+    (a zero channel). Returns (C, height, width) uint8 (C = config.channels): the image (RGB or
+    gray) and, with ``config.disparity``, :func:`normalise_disparity` coded as
+    ``round(40 d) + 128``. :func:`decode_frames` turns it into the network's float input.
+    """
+    import cv2
+
+    size = (config.width, config.height)
+    interp = cv2.INTER_AREA if rgb.shape[1] >= config.width else cv2.INTER_LINEAR
+    small = cv2.resize(np.ascontiguousarray(rgb), size, interpolation=interp)
+    img = small.transpose(2, 0, 1) if config.rgb else cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)[None]
+    if not config.disparity:
+        return np.ascontiguousarray(img, dtype=np.uint8)
+    if disparity is None:
+        code = np.full((1, config.height, config.width), 128, np.uint8)
+    else:
+        d = np.asarray(disparity, np.float32)
+        if (d.shape[1], d.shape[0]) != size:
+            d = cv2.resize(d, size, interpolation=cv2.INTER_AREA if d.shape[1] >= config.width else cv2.INTER_LINEAR)
+        code = (np.round(normalise_disparity(d) * DISPARITY_CODE_SCALE) + 128).astype(np.uint8)[None]
+    return np.ascontiguousarray(np.concatenate([img, code], 0), dtype=np.uint8)
+
+
+def decode_frames(codes: np.ndarray | torch.Tensor, config: AFNetConfig) -> torch.Tensor:
+    """Bytes of :func:`encode_frame`, shape (..., C, H, W), -> float32 network input: image in
+    [-0.5, 0.5], disparity channel in [-3, 3]."""
+    x = torch.as_tensor(codes).to(torch.float32)
+    n_img = 3 if config.rgb else 1
+    img = x[..., :n_img, :, :] / 255.0 - 0.5
+    if not config.disparity:
+        return img
+    return torch.cat([img, (x[..., n_img:, :, :] - 128.0) / DISPARITY_CODE_SCALE], dim=-3)
+
+
+class BasicBlock(nn.Module):
+    """ResNet basic block: two 3x3 conv + BN, ReLU, identity or 1x1 projection shortcut."""
+
+    def __init__(self, cin: int, cout: int, stride: int = 1) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(cin, cout, 3, stride, 1, bias=False)
+        self.bn1 = nn.BatchNorm2d(cout)
+        self.conv2 = nn.Conv2d(cout, cout, 3, 1, 1, bias=False)
+        self.bn2 = nn.BatchNorm2d(cout)
+        self.short = None
+        if stride != 1 or cin != cout:
+            self.short = nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = F.relu(self.bn1(self.conv1(x)))
+        y = self.bn2(self.conv2(y))
+        return F.relu(y + (x if self.short is None else self.short(x)))
+
+
+class CNN1(nn.Module):
+    """One temporal unit (f_T frames as channels) -> (features at 1/8, map logits at 1/4).
+
+    Stem 3x3 stride 2 (1/2), blocks widths1[0] (1/2), [1] stride 2 (1/4), [2] stride 2 (1/8),
+    [3] (1/8): ResNet-10-like. The map head adds the 1/8 features, upsampled, to the 1/4 ones.
+    """
+
+    def __init__(self, config: AFNetConfig) -> None:
+        super().__init__()
+        w = config.widths1
+        self.stem = nn.Sequential(nn.Conv2d(config.f_t * config.channels, w[0], 3, 2, 1, bias=False),
+                                  nn.BatchNorm2d(w[0]), nn.ReLU(inplace=True))
+        self.b1 = BasicBlock(w[0], w[0])
+        self.b2 = BasicBlock(w[0], w[1], 2)
+        self.b3 = BasicBlock(w[1], w[2], 2)
+        self.b4 = BasicBlock(w[2], w[3])
+        self.lateral = nn.Conv2d(w[3], w[1], 1)
+        self.map_head = nn.Sequential(nn.Conv2d(w[1], w[1], 3, 1, 1), nn.ReLU(inplace=True), nn.Conv2d(w[1], 1, 1))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """x: (N, f_T * C, H, W). Returns (features (N, widths1[3], H/8, W/8), map (N, 1, H/4, W/4))."""
+        quarter = self.b2(self.b1(self.stem(x)))
+        feat = self.b4(self.b3(quarter))
+        up = F.interpolate(self.lateral(feat), size=quarter.shape[-2:], mode="bilinear", align_corners=False)
+        return feat, self.map_head(F.relu(quarter + up))
+
+
+class CNN2(nn.Module):
+    """s unit feature maps -> NFT logit: 1x1 reduction, three basic blocks (two with stride 2),
+    global average pooling, linear (ResNet-10-like)."""
+
+    def __init__(self, config: AFNetConfig) -> None:
+        super().__init__()
+        w = config.widths2
+        self.reduce = nn.Sequential(nn.Conv2d(config.s * config.widths1[3], w[0], 1, bias=False),
+                                    nn.BatchNorm2d(w[0]), nn.ReLU(inplace=True))
+        self.b1 = BasicBlock(w[0], w[1])
+        self.b2 = BasicBlock(w[1], w[2], 2)
+        self.b3 = BasicBlock(w[2], w[3], 2)
+        self.fc = nn.Linear(w[3], 1)
+
+    def forward(self, feats: torch.Tensor) -> torch.Tensor:
+        """feats: (B, s * widths1[3], H/8, W/8). Returns (B,) logits."""
+        y = self.b3(self.b2(self.b1(self.reduce(feats))))
+        return self.fc(y.mean(dim=(2, 3)))[:, 0]
+
+
+class AFNet(nn.Module):
+    """CNN-1 on each of the s temporal units, CNN-2 on their features (module docstring)."""
+
+    def __init__(self, config: AFNetConfig | None = None) -> None:
+        super().__init__()
+        self.config = (config or AFNetConfig()).check()
+        self.cnn1 = CNN1(self.config)
+        self.cnn2 = CNN2(self.config)
+
+    def parameter_count(self) -> int:
+        """Number of trainable parameters."""
+        return sum(p.numel() for p in self.parameters())
+
+    def unit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """CNN-1 on units: x (N, f_T, C, H, W) -> (features, map logits (N, H/4, W/4))."""
+        n, f, c, h, w = x.shape
+        feat, m = self.cnn1(x.reshape(n, f * c, h, w))
+        return feat, m[:, 0]
+
+    def head(self, feats: torch.Tensor) -> torch.Tensor:
+        """CNN-2: feats (B, s, C1, h, w) -> NFT logits (B,)."""
+        b, s, c, h, w = feats.shape
+        return self.cnn2(feats.reshape(b, s * c, h, w))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """x: (B, L, C, H, W), L = s * f_T sampled frames in time order.
+
+        Returns (NFT logits (B,) of the centre frame, map logits (B, s, H/4, W/4) of the unit
+        centres)."""
+        cfg = self.config
+        b, length, c, h, w = x.shape
+        if length != cfg.frames_seen or c != cfg.channels or (w, h) != (cfg.width, cfg.height):
+            raise ValueError(f"AF-Net input {tuple(x.shape)}: expected (B, {cfg.frames_seen}, {cfg.channels}, "
+                             f"{cfg.height}, {cfg.width})")
+        units = x.reshape(b * cfg.s, cfg.f_t, c, h, w)
+        feat, maps = self.unit(units)
+        logits = self.head(feat.reshape(b, cfg.s, *feat.shape[1:]))
+        return logits, maps.reshape(b, cfg.s, *maps.shape[1:])
+
+
+def map_to_prob(logits: torch.Tensor) -> torch.Tensor:
+    """Spatial softmax of map logits (..., h, w) -> a distribution over the map cells."""
+    shape = logits.shape
+    return torch.softmax(logits.reshape(*shape[:-2], -1), dim=-1).reshape(shape)

@@ -1,0 +1,391 @@
+"""``rvr train-afnet``: resumable training of AF-Net (paper section 5.3).
+
+Loss per sample (weight 1; weak-label clips ``weak_weight``): ``w_map`` times the cross-entropy
+between the focus-region target of each unit centre with a known region and the spatial
+softmax of CNN-1's map (the paper supervises (x, y) with fixation maps; ours are boxes and
+focus points, :mod:`.data`), plus ``w_nft`` times the binary cross-entropy between the
+predicted NFT logit and the soft NFT label of the centre frame. Adam (lr 1e-3), batch 8,
+gradient norm clipped at 5.
+
+The run folder holds, as for the estimator (:mod:`rvr_addon.estimate.train`):
+
+```
+checkpoint.pt   model, Adam, iteration, numpy + torch RNG, wall time (atomic; every
+                --checkpoint-every iterations, at the end and on Ctrl-C)
+loss_log.csv    one row per iteration (LOG_FIELDS)
+loss.png        the loss curves (refreshed with every checkpoint)
+run.json        settings and the training-data summary of the latest start
+afnet.pt        exported weights at the end: {"format", "header" (JSON text), "state_dict"},
+                loaded with torch.load(weights_only=True)
+afnet.json      the same header, for people
+data_cache/     the prepared clips (.npz), reused on resume
+```
+
+``--resume`` continues exactly where the checkpoint stopped (same samples and result as an
+uninterrupted run); rows of the log past the checkpoint are dropped.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .. import __version__
+from ..errors import InputError, RvrError
+from ..estimate.train import _atomic_text, _atomic_torch_save, current_rss_mb, deferred_interrupt, release_memory
+from ..io.paths import temp_sibling
+from .data import Sample, TrainingSet, load_training_clips
+from .model import AFNet, AFNetConfig
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = "rvr-laaf-afnet-checkpoint/1"
+WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
+LOG_FIELDS = ("iteration", "wall_s", "total", "map", "nft", "p_pos", "p_neg", "grad_norm", "weak_share", "rss_mb")
+"""Columns of loss_log.csv: ``map`` and ``nft`` the two loss terms (weighted means over the
+batch), ``p_pos``/``p_neg`` the mean predicted NFT probability on samples with label >= 0.5 /
+< 0.5 (blank when the batch had none), ``weak_share`` the share of weak-label samples."""
+
+
+@dataclass
+class AFNetTrainSettings:
+    """Everything ``rvr train-afnet`` takes (see ``rvr train-afnet --help``)."""
+
+    run_dir: Path
+    data: list[Path] = field(default_factory=list)
+    annotations: list[Path] = field(default_factory=list)
+    iterations: int = 10000
+    lr: float = 1e-3
+    batch: int = 8
+    weak_weight: float = 0.3
+    w_map: float = 1.0
+    w_nft: float = 1.0
+    pos_fraction: float = 0.5
+    tolerance: float = 3.0
+    checkpoint_every: int = 250
+    grad_clip: float = 5.0
+    seed: int = 0
+    resume: bool = False
+    model: AFNetConfig = field(default_factory=AFNetConfig)
+
+
+def batch_loss(model: AFNet, samples: list[Sample], w_map: float = 1.0, w_nft: float = 1.0
+               ) -> tuple[torch.Tensor, dict[str, float]]:
+    """The loss of the module docstring on a batch; returns (total, float parts for the log)."""
+    x = torch.from_numpy(np.stack([s.x for s in samples]))
+    target = torch.from_numpy(np.stack([s.target for s in samples]))
+    valid = torch.from_numpy(np.stack([s.valid for s in samples]))
+    label = torch.tensor([s.label for s in samples], dtype=torch.float32)
+    weight = torch.tensor([s.weight for s in samples], dtype=torch.float32)
+    logits, maps = model(x)
+    logp = F.log_softmax(maps.flatten(2), dim=-1)
+    ce = -(target.flatten(2) * logp).sum(-1)  # (B, s)
+    vw = valid.float() * weight[:, None]
+    map_loss = (ce * vw).sum() / vw.sum().clamp_min(1e-6)
+    nft = F.binary_cross_entropy_with_logits(logits, label, reduction="none")
+    nft_loss = (nft * weight).sum() / weight.sum().clamp_min(1e-6)
+    total = w_map * map_loss + w_nft * nft_loss
+    prob = torch.sigmoid(logits.detach())
+    pos, neg = label >= 0.5, label < 0.5
+    parts = {"total": float(total.detach()), "map": float(map_loss.detach()), "nft": float(nft_loss.detach()),
+             "p_pos": float(prob[pos].mean()) if bool(pos.any()) else float("nan"),
+             "p_neg": float(prob[neg].mean()) if bool(neg.any()) else float("nan"),
+             "weak_share": float(np.mean([s.weight < 1.0 for s in samples]))}
+    return total, parts
+
+
+class AFNetTrainer:
+    """A resumable AF-Net training run: ``step()`` / ``progress`` / ``cancel()`` (module docstring)."""
+
+    def __init__(self, settings: AFNetTrainSettings, progress: bool = False) -> None:
+        s = self.settings = settings
+        if not s.data and not s.annotations:
+            raise InputError("no AF-Net training data: pass --data DATASET (harness clips) and/or --annotations "
+                             "FILE.json (editor exports or weak labels)")
+        if s.iterations < 1 or s.batch < 1 or s.lr <= 0 or s.checkpoint_every < 1:
+            raise InputError(f"need --iterations >= 1, --batch >= 1, --lr > 0, --checkpoint-every >= 1 "
+                             f"(got {s.iterations}, {s.batch}, {s.lr}, {s.checkpoint_every})")
+        if s.weak_weight < 0 or s.w_map < 0 or s.w_nft < 0:
+            raise InputError(f"--weak-weight, --w-map and --w-nft must be >= 0 (got {s.weak_weight}, {s.w_map}, "
+                             f"{s.w_nft})")
+        self.run_dir = Path(s.run_dir)
+        self.checkpoint_path = self.run_dir / "checkpoint.pt"
+        self.log_path = self.run_dir / "loss_log.csv"
+        if self.checkpoint_path.exists() and not s.resume:
+            raise InputError(f"'{self.run_dir}' already holds an AF-Net run (checkpoint.pt): pass --resume to "
+                             "continue it, or choose a new -o folder")
+        if s.resume and not self.checkpoint_path.exists():
+            raise InputError(f"--resume: '{self.checkpoint_path}' does not exist; start the run without --resume")
+        checkpoint = self._load_checkpoint() if s.resume else None
+        model_cfg = AFNetConfig.from_dict(json.loads(checkpoint["model_config"])) if checkpoint else s.model.check()
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        clips, self.report = load_training_clips(model_cfg, s.data, s.annotations, self.run_dir / "data_cache",
+                                                 progress=progress)
+        self.data = TrainingSet(clips, model_cfg, pos_fraction=s.pos_fraction, weak_weight=s.weak_weight,
+                                tolerance=s.tolerance)
+        torch.manual_seed(s.seed)
+        self.rng = np.random.default_rng(s.seed)
+        self.model = AFNet(model_cfg)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=s.lr)
+        self.iteration = 0
+        self.wall_before = 0.0
+        if checkpoint is not None:
+            self._restore(checkpoint)
+        self._started = time.perf_counter()
+        self._cancelled = False
+        self.last: dict[str, float] = {}
+        self._log_file = None
+        self._open_log()
+        _atomic_text(self.run_dir / "run.json", json.dumps(self._run_record(), indent=1))
+
+    # -- checkpoints ----------------------------------------------------------------------
+    def _load_checkpoint(self) -> dict:
+        try:
+            ck = torch.load(self.checkpoint_path, map_location="cpu", weights_only=True)
+        except Exception as ex:  # noqa: BLE001 - any unpickling failure means a corrupt file
+            raise InputError(f"checkpoint '{self.checkpoint_path}' cannot be read ({type(ex).__name__}: {ex}); "
+                             "delete it to start over (or restore a copy)") from ex
+        if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+            raise InputError(f"'{self.checkpoint_path}' is not an AF-Net training checkpoint ({CHECKPOINT_FORMAT})")
+        return ck
+
+    def _restore(self, ck: dict) -> None:
+        self.model.load_state_dict(ck["model"])
+        self.optimizer.load_state_dict(ck["optimizer"])
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.settings.lr
+        self.iteration = int(ck["iteration"])
+        self.wall_before = float(ck["wall_time_s"])
+        self.rng.bit_generator.state = json.loads(ck["numpy_rng"])
+        torch.set_rng_state(ck["torch_rng"])
+        log.info("resumed %s at iteration %d", self.checkpoint_path, self.iteration)
+
+    def save_checkpoint(self) -> None:
+        """Write checkpoint.pt atomically (model, Adam, iteration, RNG, wall time)."""
+        _atomic_torch_save({
+            "format": CHECKPOINT_FORMAT, "iteration": self.iteration, "wall_time_s": self.wall_time,
+            "model_config": json.dumps(self.model.config.to_dict()), "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(), "numpy_rng": json.dumps(self.rng.bit_generator.state),
+            "torch_rng": torch.get_rng_state(),
+        }, self.checkpoint_path)
+        if self._log_file is not None:
+            self._log_file.flush()
+
+    @property
+    def wall_time(self) -> float:
+        """Training seconds over all sessions of this run."""
+        return self.wall_before + (time.perf_counter() - self._started)
+
+    # -- log and plot ---------------------------------------------------------------------
+    def _open_log(self) -> None:
+        rows = []
+        if self.log_path.exists() and self.settings.resume:
+            with self.log_path.open(newline="") as f:
+                rows = [r for r in csv.DictReader(f) if r.get("iteration", "").isdigit()
+                        and int(r["iteration"]) <= self.iteration]
+        tmp = temp_sibling(self.log_path, ".csv")
+        with tmp.open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=LOG_FIELDS)
+            w.writeheader()
+            w.writerows({k: r.get(k, "") for k in LOG_FIELDS} for r in rows)
+        os.replace(tmp, self.log_path)
+        self._log_file = self.log_path.open("a", newline="")
+        self._log = csv.DictWriter(self._log_file, fieldnames=LOG_FIELDS)
+
+    def plot(self) -> None:
+        """Write loss.png (skipped with one warning without matplotlib; the CSV has it all)."""
+        if self._log_file is not None:
+            self._log_file.flush()
+        try:
+            plot_losses(self.log_path, self.run_dir / "loss.png")
+        except ImportError as ex:
+            if not getattr(self, "_warned_plot", False):
+                log.warning("no loss plot (%s); the numbers are in %s", ex, self.log_path)
+                self._warned_plot = True
+
+    # -- the job --------------------------------------------------------------------------
+    @property
+    def progress(self) -> float:
+        """Fraction of the iterations done, 0..1."""
+        return min(self.iteration / self.settings.iterations, 1.0)
+
+    @property
+    def done(self) -> bool:
+        return self.iteration >= self.settings.iterations or self._cancelled
+
+    def step(self) -> bool:
+        """One optimisation step on a batch; False once the run has reached its iteration count."""
+        if self.done:
+            return False
+        s = self.settings
+        self.model.train()
+        self.optimizer.zero_grad(set_to_none=True)
+        samples = [self.data.draw(self.rng) for _ in range(s.batch)]
+        total, parts = batch_loss(self.model, samples, s.w_map, s.w_nft)
+        if not np.isfinite(parts["total"]):
+            raise RvrError(f"the AF-Net loss became {parts['total']} at iteration {self.iteration + 1}; lower --lr "
+                           "and --resume from the last checkpoint")
+        total.backward()
+        del total
+        with deferred_interrupt():  # the update, its count and its log row happen together or not at all
+            norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), s.grad_clip)
+            self.optimizer.step()
+            if (self.iteration + 1) % 50 == 0:
+                release_memory()
+            parts["grad_norm"] = float(norm)
+            parts["rss_mb"] = current_rss_mb()
+            self.iteration += 1
+            self.last = parts
+            row = {k: "" for k in LOG_FIELDS}
+            row.update({k: f"{v:.6g}" for k, v in parts.items() if k in LOG_FIELDS and np.isfinite(v)})
+            row.update(iteration=self.iteration, wall_s=f"{self.wall_time:.2f}")
+            self._log.writerow(row)
+            if self.iteration % s.checkpoint_every == 0:
+                self.save_checkpoint()
+        if self.iteration % s.checkpoint_every == 0:
+            self.plot()
+        if self.iteration >= s.iterations:
+            self.finish()
+            return False
+        return True
+
+    def finish(self) -> None:
+        """Final checkpoint, plot and exported weights."""
+        self.save_checkpoint()
+        self.plot()
+        self.export(self.run_dir / "afnet.pt")
+        self.close()
+
+    def cancel(self) -> None:
+        """Stop (Ctrl-C): save a checkpoint so ``--resume`` continues from here."""
+        self._cancelled = True
+        self.save_checkpoint()
+        self.plot()
+        self.close()
+
+    def close(self) -> None:
+        if self._log_file is not None:
+            self._log_file.close()
+            self._log_file = None
+
+    def run(self, progress: bool = True) -> None:
+        """Run to the end with a tqdm bar; on Ctrl-C save a checkpoint, then re-raise."""
+        from tqdm import tqdm
+
+        s = self.settings
+        bar = tqdm(total=s.iterations, initial=self.iteration, unit="it", desc="train-afnet", disable=not progress)
+        try:
+            while self.step():
+                bar.update(1)
+                if self.iteration % 10 == 0:
+                    bar.set_postfix(loss=f"{self.last.get('total', 0):.4f}", refresh=False)
+            bar.update(s.iterations - bar.n)
+        except KeyboardInterrupt:
+            self.cancel()
+            raise
+        except BaseException:
+            self.close()
+            raise
+        finally:
+            bar.close()
+
+    # -- export ---------------------------------------------------------------------------
+    def _run_record(self) -> dict:
+        s = self.settings
+        return {"engine_version": __version__, "data": [str(p) for p in s.data],
+                "annotations": [str(p) for p in s.annotations], "iterations": s.iterations, "lr": s.lr,
+                "batch": s.batch, "weak_weight": s.weak_weight, "w_map": s.w_map, "w_nft": s.w_nft,
+                "pos_fraction": s.pos_fraction, "tolerance_frames": s.tolerance, "seed": s.seed,
+                "model": self.model.config.to_dict(), "parameters": self.model.parameter_count(),
+                "training_data": self.report.to_dict()}
+
+    def export(self, path: Path) -> Path:
+        """Write the shippable weights (state dict + JSON header) and the header as .json."""
+        training = {k: v for k, v in self._run_record().items() if k not in ("model", "parameters", "engine_version")}
+        return export_weights(self.model, path, self.iteration, self.wall_time, training)
+
+
+def export_weights(model: AFNet, path: Path, iterations: int, wall_time_s: float, training: dict) -> Path:
+    """Write ``{"format", "header" (JSON text), "state_dict"}`` atomically, and the header as .json."""
+    path = Path(path)
+    cfg = model.config
+    header = {"format": WEIGHTS_FORMAT, "architecture": "AFNet", "config": cfg.to_dict(),
+              "parameters": model.parameter_count(), "engine_version": __version__,
+              "receptive_field_frames": cfg.span, "iterations": int(iterations),
+              "wall_time_s": round(float(wall_time_s), 1), "training": training,
+              "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_torch_save({"format": WEIGHTS_FORMAT, "header": json.dumps(header), "state_dict": state}, path)
+    _atomic_text(path.with_suffix(".json"), json.dumps(header, indent=1))
+    return path
+
+
+def plot_losses(log_path: Path, out: Path) -> None:
+    """loss_log.csv -> PNG (atomic): map and NFT losses (moving averages, log scale) and the
+    mean NFT probability on positive and negative samples."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cols: dict[str, list[float]] = {k: [] for k in ("iteration", "total", "map", "nft", "p_pos", "p_neg")}
+    with log_path.open(newline="") as f:
+        for r in csv.DictReader(f):
+            try:
+                it = float(r["iteration"])
+            except (KeyError, ValueError, TypeError):
+                continue
+            cols["iteration"].append(it)
+            for k in list(cols)[1:]:
+                try:
+                    cols[k].append(float(r.get(k) or "nan"))
+                except ValueError:
+                    cols[k].append(float("nan"))
+    if not cols["iteration"]:
+        return
+    x = np.asarray(cols["iteration"])
+    win = max(1, len(x) // 50)
+
+    def smooth(key: str) -> tuple[np.ndarray, np.ndarray]:
+        y = np.asarray(cols[key])
+        ok = np.isfinite(y)
+        if not ok.any():
+            return np.zeros(0), np.zeros(0)
+        xs, ys = x[ok], y[ok]
+        w = min(win, len(ys))
+        return xs[w - 1:], np.convolve(ys, np.ones(w) / w, mode="valid")
+
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 6.5), dpi=100)
+    for key, label in (("total", "total"), ("map", "focus-region map (cross-entropy)"), ("nft", "NFT (BCE)")):
+        xs, ys = smooth(key)
+        if len(ys):
+            a1.plot(xs, ys, label=label, lw=1.2)
+    a1.set_yscale("log")
+    a1.set_xlabel("iteration")
+    a1.set_ylabel(f"loss (moving average over {win})")
+    a1.grid(True, which="both", alpha=0.3)
+    a1.legend(fontsize=8)
+    for key, label in (("p_pos", "mean P on NFT samples"), ("p_neg", "mean P on other samples")):
+        xs, ys = smooth(key)
+        if len(ys):
+            a2.plot(xs, ys, label=label, lw=1.2)
+    a2.set_ylim(0, 1)
+    a2.set_xlabel("iteration")
+    a2.set_ylabel("NFT probability")
+    a2.grid(True, alpha=0.3)
+    a2.legend(fontsize=8)
+    fig.tight_layout()
+    tmp = temp_sibling(out, ".png")
+    fig.savefig(tmp, format="png")
+    plt.close(fig)
+    os.replace(tmp, out)
+

@@ -1,0 +1,117 @@
+"""What a batch run takes (:class:`BatchSettings`) and what it knows of one clip (:class:`ClipPlan`).
+
+Both are plain picklable dataclasses: the client builds them and every task receives them.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+from .. import __version__
+from ..laaf.puller import PullSettings
+from ..temporal.filter import TemporalSettings
+
+FORMATS = ("mp4", "png", "exr")
+BATCH_DIR = ".rvr_batch"
+"""Hidden folder inside the output folder: done markers and per-clip work in progress."""
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    """Settings of one ``rvr batch`` run (see ``rvr batch --help`` for each).
+
+    output: folder receiving ``NAME.mp4`` (or ``NAME_frames/``) and ``NAME.focus.json`` per
+    clip. cache_root: per-clip caches go to ``cache_root/NAME-HASH/`` (default
+    ``output/rvr_cache``). weights: estimator weights (None = the shipped ones). depth_root:
+    external disparity maps, clip NAME's in ``depth_root/NAME`` (a folder of per-frame maps,
+    DESIGN units after ``D = depth_scale * map + depth_offset``); with no_hdr, E = 0 and no
+    network is needed. chunk_frames: frames per task (long clips are split; 0 = whole
+    clips). format: mp4 (H.264 with the source audio), png (8-bit sRGB frames) or exr
+    (linear float frames). fps: frame rate of image-sequence inputs. keep_cache: False
+    deletes a clip's cache once its outputs are written (at 1080p a cache frame is tens of
+    MB; keep it for clips to be edited further in Blender).
+    """
+
+    output: Path
+    cache_root: Path | None = None
+    weights: Path | None = None
+    depth_root: Path | None = None
+    depth_scale: float = 1.0
+    depth_offset: float = 0.0
+    depth_is_distance: bool = False
+    no_hdr: bool = False
+    temporal: TemporalSettings = field(default_factory=TemporalSettings)
+    preset: str | None = "conversation"
+    window_s: float = 2.0
+    causal: bool = False
+    pull: PullSettings = field(default_factory=PullSettings)
+    aperture: float = 1.0
+    scale: float = 1.0
+    format: str = "mp4"
+    chunk_frames: int = 240
+    fps: float | None = None
+    force: bool = False
+    retries: int = 0
+    keep_cache: bool = True
+
+    @property
+    def caches(self) -> Path:
+        """Folder holding the per-clip caches."""
+        return self.cache_root if self.cache_root is not None else self.output / "rvr_cache"
+
+    def fingerprint(self, weights_id: str) -> str:
+        """Hash (16 hex) of everything that changes a clip's outputs: the settings, the engine
+        version and the weights (``weights_id``, e.g. their hash). Done markers record it."""
+        record = asdict(self)
+        for k in ("output", "cache_root", "chunk_frames", "force", "retries", "keep_cache"):
+            record.pop(k)
+        record.update(engine_version=__version__, weights=weights_id)
+        return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class ClipPlan:
+    """One clip of the batch: where it comes from and where everything about it goes.
+
+    name: output stem (unique in the batch). frames, fps, width, height, has_audio: filled in
+    by the probe task (0 until then). source_hash: the source fingerprint (cache module).
+    """
+
+    index: int
+    source: Path
+    name: str
+    cache: Path
+    work: Path
+    frames: int = 0
+    fps: float = 0.0
+    width: int = 0
+    height: int = 0
+    has_audio: bool = False
+    source_hash: str = ""
+
+    def probed(self, **info) -> "ClipPlan":
+        """A copy with the probe's findings."""
+        return replace(self, **info)
+
+    def video_path(self, settings: BatchSettings) -> Path:
+        """The rendered video (format mp4)."""
+        return settings.output / f"{self.name}.mp4"
+
+    def frames_path(self, settings: BatchSettings) -> Path:
+        """The rendered frame folder (formats png, exr)."""
+        return settings.output / f"{self.name}_frames"
+
+    def focus_path(self, settings: BatchSettings) -> Path:
+        """The focus file LAAF decided (``rvr render --track`` reads it)."""
+        return settings.output / f"{self.name}.focus.json"
+
+    def marker_path(self, settings: BatchSettings) -> Path:
+        """The done marker written when the clip is complete."""
+        return settings.output / BATCH_DIR / f"{self.name}.done.json"
+
+    def output_paths(self, settings: BatchSettings) -> list[Path]:
+        """Everything a finished clip leaves in the output folder."""
+        main = self.video_path(settings) if settings.format == "mp4" else self.frames_path(settings)
+        return [main, self.focus_path(settings)]

@@ -1,0 +1,90 @@
+"""AF-Net as a LAAF detector (preset ``learned``; paper section 5.3).
+
+Unlike the AI-assist detectors, whose intersected maps become NFTs through the level signal's
+discontinuities (``combine.StepDetector``), AF-Net predicts the NFTs itself: the driver takes
+them from :meth:`AFNetDetector.take_nfts` (frame, focus region, probability) and tracks each
+from its region as it tracks a manual NFT. Its heat map (the focus-region map of the nearest
+query, scaled to a maximum of 1) still feeds the level signal, the plots and the initial
+focus on frame 0.
+
+``lookahead_frames`` is what a decision needs: a query at q sees frames up to q + half_span,
+and a peak is final once the queries min_gap frames further are in.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from ..combine import Region
+from .base import AnalysisFrame, DetectorOutput, FocusDetector
+
+log = logging.getLogger(__name__)
+
+
+class AFNetDetector(FocusDetector):
+    """Streaming AF-Net over the analysis frames of one clip.
+
+    weights: exported AF-Net weights (None: ``rvr_addon/afnet/weights/afnet.pt``). n_frames:
+    clip length. fps: frame rate (sets min_gap to half a second unless given). threshold: the
+    NFT probability a peak must reach. Raises InputError (naming the path and how to make it)
+    when the weights are missing."""
+
+    name = "afnet"
+
+    def __init__(self, weights: str | Path | None, n_frames: int, fps: float, threshold: float = 0.5,
+                 min_gap: int | None = None) -> None:
+        from ...afnet.infer import AFNetStream, load_afnet, nft_min_gap
+
+        self.model, self.header = load_afnet(weights)
+        self.config = self.model.config
+        gap = nft_min_gap(fps) if min_gap is None else int(min_gap)
+        self.stream = AFNetStream(self.model, n_frames, threshold, gap)
+        self.lookahead_frames = self.config.half_span + gap + self.config.stride
+        self.size: tuple[int, int] | None = None
+        self._frames = 0
+        self._nfts = 0
+
+    def process(self, t: int, frame: AnalysisFrame) -> None:
+        from ...afnet.model import encode_frame
+
+        self.size = (frame.rgb.shape[1], frame.rgb.shape[0])
+        self.stream.push(encode_frame(frame.rgb, frame.disparity, self.config))
+        self._frames += 1
+
+    def flush(self) -> None:
+        self.stream.finish()
+
+    def output(self, t: int) -> DetectorOutput:
+        import cv2
+
+        prob = self.stream.map_at(t)
+        if prob is None or self.size is None:
+            return DetectorOutput(None)
+        heat = prob / max(float(prob.max()), 1e-12)
+        heat = cv2.resize(heat.astype(np.float32), self.size, interpolation=cv2.INTER_LINEAR)
+        self.stream.forget_maps_before(t - self.lookahead_frames)
+        return DetectorOutput(np.clip(heat, 0.0, 1.0))
+
+    def take_nfts(self) -> list[tuple[int, int, float, Region]]:
+        """NFTs that became certain: (frame t, frame whose map gave the region, probability,
+        region in analysis px)."""
+        from ...afnet.infer import region_from_map
+
+        out = []
+        for peak in self.stream.take_peaks():
+            c = self.stream.region_frame(peak.t)
+            if c is None or self.size is None:
+                continue
+            r = region_from_map(self.stream.maps[c], self.size)
+            region = Region(r.x, r.y, r.box, r.mask, float(r.mask.mean()), ("afnet",))
+            out.append((peak.t, min(max(c, 0), self.stream.n - 1), peak.p, region))
+            self._nfts += 1
+        return out
+
+    def metrics(self) -> dict:
+        probs = self.stream.probs
+        return {"frames": self._frames, "queries": len(probs), "nfts": self._nfts,
+                "max_p": round(max(probs.values()), 4) if probs else None,
+                "receptive_field_frames": self.config.span, "padded": self.stream.padded}

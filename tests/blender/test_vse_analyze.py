@@ -1,0 +1,109 @@
+"""rvr.analyze on a movie strip: the cache next to the .blend, reuse, trimmed strips, the modal
+run and its cancel, and the bad input of issue 7 (no weights, no strip, sound strip, moved file,
+unsaved file)."""
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from conftest import VSE_N, Event, OperatorStub
+
+bpy = pytest.importorskip("bpy")
+
+
+def _meta(strip):
+    return json.loads((_cache(strip) / "meta.json").read_text())
+
+
+def _cache(strip):
+    from pathlib import Path
+
+    return Path(bpy.path.abspath(strip.rvr.cache_path))
+
+
+def test_analyze_without_weights_or_maps_names_the_file(movie_strip, no_shipped_weights, use_prefs):
+    use_prefs()
+    with pytest.raises(RuntimeError, match="estimator.pt") as info:
+        bpy.ops.rvr.analyze("EXEC_DEFAULT")
+    assert str(no_shipped_weights) in str(info.value) and "Disparity maps" in str(info.value)
+    assert movie_strip.rvr.cache_path == ""
+
+
+def test_analyze_depth_from_maps_then_reuse(movie_strip, vse_depth, no_shipped_weights, use_prefs, saved_blend):
+    use_prefs()
+    movie_strip.rvr.depth_path = str(vse_depth)
+    assert bpy.ops.rvr.analyze("EXEC_DEFAULT") == {"FINISHED"}
+    assert movie_strip.rvr.cache_path.startswith("//rvr_cache/")  # next to the .blend, relative
+    cache = _cache(movie_strip)
+    assert cache.parent == saved_blend.parent / "rvr_cache"
+    meta = _meta(movie_strip)
+    assert meta["frame_count"] == VSE_N and meta["model_hash"] == "none"
+    assert meta["stabilized"]["frames"] and not meta["stabilized"]["pending"]
+    stamps = {p.name: p.stat().st_mtime_ns for p in cache.glob("frame_*.exr")}
+    # again: everything reused, nothing rewritten
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    assert f"reused {VSE_N}" in op.reports[-1][1] and "estimated 0 frames" in op.reports[-1][1]
+    assert stamps == {p.name: p.stat().st_mtime_ns for p in cache.glob("frame_*.exr")}
+
+
+def test_analyze_with_weights_follows_trimmed_strip(movie_strip, vse_weights, use_prefs):
+    use_prefs(weights_path=str(vse_weights))
+    movie_strip.frame_offset_start = 3
+    movie_strip.frame_offset_end = 2
+    assert bpy.ops.rvr.analyze("EXEC_DEFAULT") == {"FINISHED"}
+    meta = _meta(movie_strip)
+    assert meta["frame_range"] == [3, VSE_N - 2]  # only the frames the strip shows
+    assert meta["model_hash"] != "none"
+
+
+def test_analyze_modal_cancel_keeps_finished_frames(movie_strip, vse_depth, no_shipped_weights, use_prefs,
+                                                    monkeypatch, registered):
+    use_prefs()
+    movie_strip.rvr.depth_path = str(vse_depth)
+    monkeypatch.setattr(registered.operators.jobrun, "STEP_BUDGET_S", 0.0)  # one frame per timer tick
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    op._plan, op._job = op._prepare(bpy.context)
+    bpy.context.window_manager.rvr_job_status = "RUNNING"
+    modal = bpy.types.RVR_OT_analyze.modal
+    assert modal(op, bpy.context, Event("MOUSEMOVE")) == {"PASS_THROUGH"}
+    for _ in range(3):
+        assert modal(op, bpy.context, Event("TIMER")) == {"PASS_THROUGH"}
+    assert 0 < bpy.context.window_manager.rvr_job_progress < 100
+    cache = op._plan.cache
+    assert modal(op, bpy.context, Event("ESC")) == {"CANCELLED"}
+    assert bpy.context.window_manager.rvr_job_status == "IDLE"
+    assert "cancelled" in bpy.context.window_manager.rvr_job_text
+    assert movie_strip.rvr.cache_path == ""  # nothing recorded on the strip
+    meta = json.loads((cache / "meta.json").read_text())
+    assert meta["frame_count"] == 3  # the finished frames stay valid
+    # the next run continues from there
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    assert "reused 3" in op.reports[-1][1]
+
+
+def test_analyze_bad_input(registered, factory_scene, vse_clip, vse_depth, tmp_path, use_prefs, no_shipped_weights):
+    use_prefs()
+    assert not bpy.ops.rvr.analyze.poll()  # no strip
+    editor = factory_scene.sequence_editor_create()
+    sound = editor.strips.new_sound("Sound", str(vse_clip), channel=1, frame_start=1)
+    editor.active_strip = sound
+    assert not bpy.ops.rvr.analyze.poll()
+    with pytest.raises(RuntimeError, match="not a movie or image strip"):
+        bpy.ops.rvr.analyze()
+    moved = tmp_path / "moved.mp4"
+    shutil.copy(vse_clip, moved)
+    strip = editor.strips.new_movie("Moved", str(moved), channel=2, frame_start=1)
+    strip.rvr.depth_path = str(vse_depth)
+    editor.active_strip = strip
+    # never saved: the default cache location (next to the .blend) does not exist yet
+    with pytest.raises(RuntimeError, match="never saved"):
+        bpy.ops.rvr.analyze("EXEC_DEFAULT")
+    use_prefs(cache_dir=str(tmp_path / "cache"))
+    moved.unlink()
+    with pytest.raises(RuntimeError, match="moved.mp4.*not found"):
+        bpy.ops.rvr.analyze("EXEC_DEFAULT")
+    assert strip.rvr.cache_path == "" and not (tmp_path / "cache").exists()

@@ -1,0 +1,199 @@
+"""rvr batch: chunk plans, staging caches, chunked == single-process output, a killed worker,
+bad input, re-runs, the missing-weights error. Clips are 64x36, 12 frames; the estimator
+weights are untrained (exported for the tests only; no weights are shipped as a model)."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from batch_synth import N, KillOnce, make_clip, make_depth, untrained_weights
+from rvr_addon.batch.chunks import chunk_ranges, stabilize_reads
+from rvr_addon.batch.graph import run_batch
+from rvr_addon.batch.inputs import clip_names, collect_clips
+from rvr_addon.batch.settings import BatchSettings
+from rvr_addon.batch.staging import adopt_estimates, seed_staging
+from rvr_addon.batch.worker import loads_per_worker
+from rvr_addon.cli import main
+from rvr_addon.errors import InputError
+from rvr_addon.estimate.cache import ClipCache, frame_path
+from rvr_addon.io.exr import read_exr
+from rvr_addon.temporal.filter import TemporalSettings
+
+CENTRED = TemporalSettings(window="centred")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("batch")
+    return {"root": root, "weights": untrained_weights(root / "w.pt"),
+            "a": make_clip(root / "clips" / "a.mp4", seed=0), "b": make_clip(root / "clips" / "b.mp4", seed=1)}
+
+
+@pytest.fixture(scope="module")
+def client():
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            Client(cluster) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def reference(data):
+    """Clip a through the single-process commands: estimate, stabilize (centred), autofocus, render (EXR)."""
+    ref = data["root"] / "ref"
+    cache, focus, frames = ref / "cache", ref / "focus.json", ref / "frames"
+    a, w = str(data["a"]), str(data["weights"])
+    assert main(["estimate", a, "-o", str(cache), "--weights", w, "-q"]) == 0
+    assert main(["stabilize", str(cache), "--window", "centred", "-q"]) == 0
+    assert main(["autofocus", a, "--cache", str(cache), "--preset", "conversation", "-o", str(focus), "-q"]) == 0
+    assert main(["render", a, "--depth", str(cache), "--hdr", str(cache), "--track", str(focus),
+                 "-o", str(frames / "frame_%05d.exr"), "-q"]) == 0
+    return {"cache": cache, "focus": focus, "frames": frames}
+
+
+def exr_frames(folder: Path) -> list[np.ndarray]:
+    files = sorted(folder.glob("frame_*.exr"))
+    return [np.dstack([(ch := read_exr(f))["R"], ch["G"], ch["B"]]) for f in files]
+
+
+def assert_same_as_reference(out: Path, settings: BatchSettings, reference: dict, name: str = "a") -> None:
+    got, want = exr_frames(out / f"{name}_frames"), exr_frames(reference["frames"])
+    assert len(got) == len(want) == N
+    for g, w in zip(got, want):
+        np.testing.assert_allclose(g, w, rtol=1e-5, atol=1e-5)
+    focus = json.loads((out / f"{name}.focus.json").read_text())["per_frame"]
+    ref_focus = json.loads(reference["focus"].read_text())["per_frame"]
+    np.testing.assert_allclose(focus["focus"], ref_focus["focus"], atol=1e-6)
+    cache = next(settings.caches.glob(f"{name}-*"))
+    for i in range(N):
+        g, w = read_exr(frame_path(cache, i)), read_exr(frame_path(reference["cache"], i))
+        for ch in ("D", "S.D", "S.E.R", "S.C"):
+            np.testing.assert_allclose(g[ch], w[ch], rtol=1e-5, atol=1e-5, err_msg=f"frame {i} channel {ch}")
+    # one file per frame and the meta, nothing else (no duplicates, no temp files)
+    names = sorted(p.name for p in cache.iterdir())
+    assert names == [f"frame_{i:05d}.exr" for i in range(1, N + 1)] + ["meta.json"]
+    meta = json.loads((cache / "meta.json").read_text())
+    assert meta["frame_count"] == N and not meta["stabilized"]["pending"]
+
+
+# ------------------------------------------------------------------------------ pure parts
+
+
+def test_chunks_cover_the_clip_and_the_filter_reads_its_window():
+    assert chunk_ranges(12, 4) == [(0, 4), (4, 8), (8, 12)]
+    assert chunk_ranges(12, 0) == [(0, 12)] and chunk_ranges(12, 50) == [(0, 12)] and chunk_ranges(0, 4) == []
+    assert chunk_ranges(100, 40) == [(0, 40), (40, 80), (80, 100)]
+    assert chunk_ranges(81, 40) == [(0, 40), (40, 81)]  # a 1-frame tail joins the chunk before it
+    assert stabilize_reads(8, 12, 20, TemporalSettings()) == (2, 12)  # causal: M = 6 past frames
+    assert stabilize_reads(8, 12, 20, CENTRED) == (5, 15)  # centred: 3 past, 3 future
+    assert stabilize_reads(0, 4, 5, CENTRED) == (0, 5)
+
+
+def test_clips_from_folders_and_list_files_get_unique_names(tmp_path, data):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "y").mkdir()
+    a1, a2 = shutil.copy(data["a"], tmp_path / "x" / "take.mp4"), shutil.copy(data["a"], tmp_path / "y" / "take.mp4")
+    listing = tmp_path / "clips.txt"
+    listing.write_text(f"# two takes\nx/take.mp4\n{a2}\n\nmissing.mov\n")
+    clips = collect_clips([tmp_path / "x", listing])
+    assert [Path(c).resolve() for c in clips] == [Path(a1).resolve(), Path(a2).resolve(), (tmp_path / "missing.mov")]
+    names = clip_names(clips)
+    assert len(set(names)) == 3 and names[0].startswith("take-") and names[2] == "missing"
+    with pytest.raises(InputError, match="holds no clip"):
+        collect_clips([tmp_path / "x" / ".."/ "x" / ".."])  # a folder of folders without clips
+
+
+def test_staging_adoption_is_atomic_and_repeatable(tmp_path, data):
+    """Chunks write staging caches; adopting them is safe to repeat and never re-records a frame twice."""
+    from rvr_addon.estimate.infer import EstimateJob, EstimateSettings
+
+    clip_cache, staging = tmp_path / "cache", tmp_path / "staging" / "estimate_000000_000004"
+    seed_staging(clip_cache, staging, 0, 4)  # nothing cached yet: an empty staging folder
+    EstimateJob(EstimateSettings(input=data["a"], output=staging, depth=make_depth(tmp_path / "d"), no_hdr=True,
+                                 start=0, stop=4)).run(progress=False)
+    copy = tmp_path / "copy"
+    shutil.copytree(staging, copy)
+    assert adopt_estimates(clip_cache, staging) == 4 and not staging.exists()
+    assert adopt_estimates(clip_cache, staging) == 0  # merged already: nothing to do
+    cache = ClipCache.open_existing(clip_cache)
+    assert cache.frame_indices() == [0, 1, 2, 3]
+    # a re-seeded chunk reuses the cached frames through hard links; adopting them moves nothing
+    again = tmp_path / "staging" / "again"
+    seed_staging(clip_cache, again, 2, 4)
+    assert sorted(p.name for p in again.glob("frame_*")) == ["frame_00003.exr", "frame_00004.exr"]
+    assert os.path.samefile(frame_path(again, 2), frame_path(clip_cache, 2))
+    assert adopt_estimates(clip_cache, again) == 0
+    assert ClipCache.open_existing(clip_cache).frame_indices() == [0, 1, 2, 3]
+    assert adopt_estimates(clip_cache, copy) == 4  # other files for the same frames replace them, once each
+    assert sorted(p.name for p in clip_cache.iterdir()) == [f"frame_{i:05d}.exr" for i in range(1, 5)] + ["meta.json"]
+
+
+# ------------------------------------------------------------------------------ on a local cluster
+
+
+def test_chunked_batch_equals_the_single_process_commands(tmp_path, data, client, reference):
+    settings = BatchSettings(output=tmp_path / "out", weights=data["weights"], temporal=CENTRED, format="exr",
+                             chunk_frames=4)
+    report = run_batch([data["a"]], settings, client=client, progress=False)
+    assert [c.status for c in report.clips] == ["done"], report.table()
+    assert_same_as_reference(tmp_path / "out", settings, reference)
+    assert report.frames_done == N and report.fps > 0 and "estimate" in report.stage_seconds_per_frame()
+    assert set(loads_per_worker(client).values()) <= {0, 1}  # the model is loaded once per worker process
+    assert not (tmp_path / "out" / ".rvr_batch" / "work").exists()  # work folders are cleaned up
+
+
+def test_a_killed_worker_chunk_is_retried_without_corrupting_the_cache(tmp_path, data, client, reference):
+    out = tmp_path / "out"
+    settings = BatchSettings(output=out, weights=data["weights"], temporal=CENTRED, format="exr", chunk_frames=4)
+    flag = tmp_path / "killed.txt"
+    plugin = KillOnce(flag, "rvr-estimate-4-", settings.caches / ".staging", "*/estimate_000004_000008/frame_*.exr")
+    client.register_plugin(plugin, name=KillOnce.name)
+    try:
+        before = set(client.nthreads())
+        report = run_batch([data["a"]], settings, client=client, progress=False)
+    finally:
+        client.unregister_worker_plugin(KillOnce.name)
+    assert flag.is_file(), "the test plugin did not kill a worker"
+    pid = int(flag.read_text().split()[0])
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)  # that worker process is gone
+    client.wait_for_workers(2, timeout=60)
+    assert set(client.nthreads()) != before  # the nanny started a new worker in its place
+    assert [c.status for c in report.clips] == ["done"], report.table()
+    assert_same_as_reference(out, settings, reference)
+
+
+def test_cli_bad_clips_fail_alone_and_a_rerun_skips_finished_clips(tmp_path, data, capsys):
+    """External depth without weights; a corrupt and a missing clip; PNG frames; then the re-run."""
+    bad = tmp_path / "broken.mp4"
+    bad.write_bytes(b"not a video")
+    depth = tmp_path / "depth"
+    make_depth(depth / "a")
+    make_depth(depth / "broken")
+    out = tmp_path / "out"
+    args = ["batch", str(data["a"]), str(bad), str(tmp_path / "missing.mp4"), "-o", str(out), "--depth-root",
+            str(depth), "--no-hdr", "--format", "png", "--chunk-frames", "5", "--workers", "1", "--no-dashboard", "-q"]
+    assert main(args) == 1
+    table = capsys.readouterr().out
+    assert "clips done 1, skipped (already finished) 0, failed 2" in table
+    assert "broken.mp4: probe: Cannot open video" in table and "missing.mp4' not found" in table
+    assert len(list((out / "a_frames").glob("frame_*.png"))) == N and (out / "a.focus.json").is_file()
+    assert main(args) == 1
+    assert "clips done 0, skipped (already finished) 1, failed 2" in capsys.readouterr().out
+
+
+def test_missing_weights_name_the_file_before_any_cluster_starts(tmp_path, data, monkeypatch, capsys):
+    import rvr_addon.estimate.infer as infer
+
+    monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "weights" / "estimator.pt")
+    with pytest.raises(InputError, match=r"weights/estimator\.pt"):
+        run_batch([data["a"]], BatchSettings(output=tmp_path / "out"), progress=False)
+    assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--weights", str(tmp_path / "nope.pt")]) == 2
+    assert "nope.pt' not found" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
