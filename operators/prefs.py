@@ -1,4 +1,4 @@
-"""Extension preferences: cache location, worker threads, estimator weights.
+"""Extension preferences: cache location, worker threads, estimator and AF-Net weights.
 
 Keyed by the extension's package name (``__package__`` of the root, e.g.
 ``bl_ext.user_default.rvr_laaf``), never by a hard-coded name. :func:`get` returns the
@@ -36,6 +36,11 @@ class RVR_AP_preferences(bpy.types.AddonPreferences):
         description="Trained estimator weights (estimator.pt written by `rvr train`); empty = the weights shipped "
                     "with the extension",
         subtype="FILE_PATH", default="", options=compat.PATH_OPTIONS)
+    afnet_weights_path: StringProperty(
+        name="AF-Net Weights",
+        description="Trained AF-Net weights (afnet.pt written by `rvr train-afnet`) for the Learned autofocus "
+                    "preset; empty = the weights shipped with the extension",
+        subtype="FILE_PATH", default="", options=compat.PATH_OPTIONS)
 
     def draw(self, context) -> None:
         layout = self.layout
@@ -43,6 +48,7 @@ class RVR_AP_preferences(bpy.types.AddonPreferences):
         layout.prop(self, "cache_dir")
         layout.prop(self, "threads")
         layout.prop(self, "weights_path")
+        layout.prop(self, "afnet_weights_path")
         try:
             path = weights_file(self)
             layout.label(text=f"Using weights: {path}", icon="CHECKMARK")
@@ -57,6 +63,7 @@ class Defaults:
     cache_dir: str = "//rvr_cache/"
     threads: int = 0
     weights_path: str = ""
+    afnet_weights_path: str = ""
 
 
 _override: dict = {}
@@ -69,7 +76,8 @@ def get(context=None):
     found = addon.preferences if addon is not None and addon.preferences is not None else None
     if not _override and found is not None:
         return found
-    base = Defaults() if found is None else Defaults(found.cache_dir, found.threads, found.weights_path)
+    base = Defaults() if found is None else Defaults(found.cache_dir, found.threads, found.weights_path,
+                                                     found.afnet_weights_path)
     return Defaults(**{**base.__dict__, **_override})
 
 
@@ -104,6 +112,18 @@ def weights_file(prefs) -> Path:
     raise InputError(f"no estimator weights: '{SHIPPED_WEIGHTS}' does not exist yet. Fix: set Preferences > "
                      "Add-ons > RVR-LAAF Refocus > Estimator Weights to a trained estimator.pt, or set the strip's "
                      f"Disparity maps (depth from elsewhere) and Analyze again. ({NO_WEIGHTS_HELP})")
+
+
+def afnet_weights_file(prefs) -> Path | None:
+    """AF-Net weights for the Learned preset: the preference if set (it must exist), else None
+    (the engine then uses the shipped file and names the fix when it is missing)."""
+    if not prefs.afnet_weights_path:
+        return None
+    path = Path(bpy.path.abspath(prefs.afnet_weights_path))
+    if not path.is_file():
+        raise InputError(f"the AF-Net weights '{path}' set in Preferences > Add-ons > RVR-LAAF Refocus were not "
+                         "found; fix the path or clear it to use the shipped weights")
+    return path
 
 
 def apply_threads(prefs) -> None:

@@ -39,6 +39,8 @@ AUTOFOCUS_PRESETS = (
     ("conversation", "Conversation", "Who is talking: speech and faces (faces when the clip has no audio)"),
     ("faces", "Faces", "The largest face"),
     ("salient", "Salient", "The most salient region"),
+    ("learned", "Learned (AF-Net)", "Any scene: the learned look-ahead autofocus model (AF-Net weights in Preferences, "
+     "else the shipped ones)"),
 )
 
 PULL_PROFILES = (

@@ -204,3 +204,17 @@ def test_partial_cache_render_after_cut(registered, movie_strip, vse_depth, no_s
     strip.rvr.depth_path = ""  # the render must use the cache
     assert bpy.ops.rvr.render_strip("EXEC_DEFAULT") == {"FINISHED"}
     assert bpy.context.scene.sequence_editor.strips_all["Clip [RVR]"].frame_final_duration == VSE_N - 3
+
+
+def test_learned_preset_with_missing_weights_names_them_and_changes_nothing(registered, analysed, use_prefs,
+                                                                             tmp_path):
+    """Auto Focus > Learned (AF-Net) with a weights path that does not exist: a clear error, and the
+    strip keeps its targets and keys."""
+    strip = analysed
+    use_prefs(afnet_weights_path=str(tmp_path / "nowhere" / "afnet.pt"))
+    assert bpy.ops.rvr.add_focus_target(x=50, y=28, w=8, h=8, frame=START + 6) == {"FINISHED"}
+    before = [(n.frame, n.source, n.keep) for n in strip.rvr.nfts]
+    with pytest.raises(RuntimeError, match="AF-Net weights"):
+        bpy.ops.rvr.auto_focus("EXEC_DEFAULT", preset="learned", lookahead_s=0.5)
+    assert [(n.frame, n.source, n.keep) for n in strip.rvr.nfts] == before
+    assert _fc(strip) is None
