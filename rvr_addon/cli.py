@@ -236,6 +236,9 @@ def add_estimate_parser(sub) -> None:
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
     p.add_argument("--stop", type=int, help="stop before this frame")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
+    p.add_argument("--max-pixels", type=int, metavar="P",
+                   help="run the network's trunk on copies shrunk to at most P pixels (D sliced and E gated at "
+                        "full size); default: the size the weights were trained for")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_estimate)
 
@@ -243,11 +246,13 @@ def add_estimate_parser(sub) -> None:
 def cmd_estimate(args: argparse.Namespace) -> int:
     from .estimate.infer import EstimateJob, EstimateSettings
 
+    if args.max_pixels is not None and args.max_pixels < 1:
+        raise RvrError(f"--max-pixels {args.max_pixels}: give a positive number of pixels, e.g. 230400 (640x360)")
     job = EstimateJob(EstimateSettings(
         input=args.input, output=args.output, weights=args.weights, depth=args.depth, depth_scale=args.depth_scale,
         depth_offset=args.depth_offset, depth_points=list(args.depth_points or []),
         depth_is_distance=args.depth_is_distance, no_hdr=args.no_hdr, start=args.start, stop=args.stop,
-        fps=args.fps))
+        fps=args.fps, max_pixels=args.max_pixels))
     try:
         job.run(progress=not args.quiet)
     except KeyboardInterrupt:

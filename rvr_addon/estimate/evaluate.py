@@ -309,7 +309,7 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
     report = Path(s.output)
     _check_target(report, s.force)
     model = load_estimator(s.weights if s.weights is not None else default_weights())
-    est = Estimator(model) if s.max_pixels is None else Estimator(model, max_pixels=s.max_pixels)
+    est = Estimator(model, max_pixels=s.max_pixels)
     summary: dict[str, float] = {}
     rows: list[dict] = []
     skipped: list[str] = []

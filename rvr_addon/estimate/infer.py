@@ -109,17 +109,27 @@ def load_estimator(path: str | Path) -> LoadedModel:
     return LoadedModel(net, header, digest, path)
 
 
+def preferred_max_pixels(model: LoadedModel) -> int:
+    """The largest frame (in pixels) the network's trunk should see: ``inference_max_pixels``
+    of the weights' header (the scale of its training frames: a network trained on 320x180
+    frames sees objects at that scale; D is sliced and E gated at full resolution anyway), else
+    DEFAULT_MAX_PIXELS."""
+    value = model.header.get("inference_max_pixels")
+    return int(value) if isinstance(value, (int, float)) and value >= 1 else DEFAULT_MAX_PIXELS
+
+
 class Estimator:
     """Per-frame RGBD-HDR inference (the pure core of ``rvr estimate``).
 
     model: a :class:`LoadedModel`. max_pixels: frames larger than this run the network on a
     shrunk copy (linear-light area resampling); the grid is sliced with the full-resolution
-    luma and E is gated at full resolution, so edges stay sharp.
+    luma and E is gated at full resolution, so edges stay sharp. None: the size the weights
+    ask for (:func:`preferred_max_pixels`).
     """
 
-    def __init__(self, model: LoadedModel, max_pixels: int = DEFAULT_MAX_PIXELS) -> None:
+    def __init__(self, model: LoadedModel, max_pixels: int | None = None) -> None:
         self.model = model
-        self.max_pixels = int(max_pixels)
+        self.max_pixels = int(max_pixels) if max_pixels is not None else preferred_max_pixels(model)
 
     def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """frame: (H, W, 3) uint8 sRGB. Returns (D (H, W) float32 in px of blur radius at
@@ -257,7 +267,7 @@ class EstimateSettings:
     start: int = 0
     stop: int | None = None
     fps: float | None = None
-    max_pixels: int = DEFAULT_MAX_PIXELS
+    max_pixels: int | None = None
 
 
 class EstimateJob:
@@ -296,6 +306,8 @@ class EstimateJob:
         key = {"format": CACHE_FORMAT, "engine_version": __version__, "model_hash": model_hash,
                "source_hash": source["hash"], "resolution": list(size),
                "depth": self.depth.describe() if self.depth is not None else "network"}
+        if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
+            key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network"}
         self.cache = ClipCache(s.output, key, info)
