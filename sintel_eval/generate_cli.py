@@ -73,7 +73,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     gen.add_argument("--tilt", type=float_range, default=None, metavar="MIN,MAX",
                      help="range of the seeded camera tilt in degrees, positive = up (default 0.5,2.5: the "
                           "near subject's head in frame); e.g. -14,0 shows the floor receding, as in much real "
-                          "footage (the estimator's training data)")
+                          "footage (the estimator's training data); write --tilt=-14,0 (with =) for a negative MIN")
     gen.add_argument("--no-denoise", action="store_true", help="disable OpenImageDenoise")
     gen.add_argument("--no-dof", action="store_true",
                      help="render only the deep pass (input, GT disparity and HDR, events): no shallow-DOF focus "
