@@ -31,8 +31,11 @@ sys.path.insert(0, str(ROOT))
 CLIP = ROOT.parent / "shared" / "data" / "clips" / "visualvoice_interview.mp4"
 
 
-def make_clip(src: Path | None, frames: int, out: Path) -> Path:
-    """640x360 H.264 + AAC clip of the first ``frames`` frames (synthetic without src)."""
+def make_clip(src: Path | None, out: Path, *, frames: int | None = None, seconds: float | None = None) -> Path:
+    """640x360 H.264 + AAC clip of the first ``frames`` frames or ``seconds`` of src (a synthetic
+    testsrc2 clip with a tone without src); shared with ``vse_bench.py``."""
+    if (frames is None) == (seconds is None):
+        raise ValueError("make_clip: give frames or seconds")
     import imageio_ffmpeg
 
     ff = imageio_ffmpeg.get_ffmpeg_exe()
@@ -40,7 +43,8 @@ def make_clip(src: Path | None, frames: int, out: Path) -> Path:
         inputs = ["-i", str(src)]
     else:
         inputs = ["-f", "lavfi", "-i", "testsrc2=size=640x360:rate=25", "-f", "lavfi", "-i", "sine=frequency=300"]
-    cmd = [ff, "-hide_banner", "-v", "error", "-y", *inputs, "-frames:v", str(frames), "-vf", "scale=640:360",
+    length = ["-frames:v", str(frames)] if frames is not None else ["-t", str(seconds)]
+    cmd = [ff, "-hide_banner", "-v", "error", "-y", *inputs, *length, "-vf", "scale=640:360",
            "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-pix_fmt", "yuv420p", "-c:a", "aac",
            "-shortest", str(out)]
     subprocess.run(cmd, check=True)
@@ -56,7 +60,7 @@ def main() -> int:
 
     out: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        clip = make_clip(args.clip, args.frames, Path(tmp) / "clip360.mp4")
+        clip = make_clip(args.clip, Path(tmp) / "clip360.mp4", frames=args.frames)
         ramp = np.linspace(6.0, -2.0, 360, dtype=np.float32)[:, None].repeat(640, axis=1)
         depth = Path(tmp) / "disparity.npy"
         np.save(depth, ramp)

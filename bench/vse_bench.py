@@ -22,30 +22,15 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from laaf_bench import make_clip  # bench/ is sys.path[0] when run as a script
+
 ROOT = Path(__file__).resolve().parents[1]
 CLIP = ROOT.parent / "shared" / "data" / "clips" / "visualvoice_interview.mp4"
-
-
-def make_clip(src: Path | None, seconds: float, out: Path) -> Path:
-    """640x360 H.264 + AAC clip of the first ``seconds`` of src (synthetic without src)."""
-    import imageio_ffmpeg
-
-    ff = imageio_ffmpeg.get_ffmpeg_exe()
-    if src is not None and src.is_file():
-        inputs = ["-i", str(src)]
-    else:
-        inputs = ["-f", "lavfi", "-i", "testsrc2=size=640x360:rate=25", "-f", "lavfi", "-i", "sine=frequency=300"]
-    cmd = [ff, "-hide_banner", "-v", "error", "-y", *inputs, "-t", str(seconds), "-vf", "scale=640:360",
-           "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-pix_fmt", "yuv420p", "-c:a", "aac",
-           "-shortest", str(out)]
-    subprocess.run(cmd, check=True)
-    return out
 
 
 def load_addon(tmp: Path):
@@ -97,7 +82,7 @@ def main() -> int:
             weights = train.export_weights(unet.EstimatorNet(), tmp / "untrained.pt", iterations=0, wall_time_s=0.0,
                                            training={"note": "bench timing only"})
             print("no trained weights: timing an untrained network of the same architecture", file=sys.stderr)
-        clip = make_clip(args.clip, args.seconds, tmp / "clip360.mp4")
+        clip = make_clip(args.clip, tmp / "clip360.mp4", seconds=args.seconds)
         cache_dir = tmp / "cache"
         with prefs.override(weights_path=str(weights), cache_dir=str(cache_dir)):
             strip = fresh_file(bpy, tmp / "analyze.blend", clip)

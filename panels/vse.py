@@ -33,6 +33,20 @@ def draw_animatable(layout, strip, prop: str, frame: int) -> None:
     op.prop = prop
 
 
+def refocusable_strip(context):
+    """The active strip when the Refocus tab can work on it (a movie or image strip), else None."""
+    strip = compat.active_strip(context)
+    return strip if strip is not None and compat.strip_type(strip) in RENDERABLE_TYPES else None
+
+
+class _RefocusTab:
+    """Mix-in: the panel sits in the Sequencer sidebar's Refocus tab."""
+
+    bl_space_type = "SEQUENCE_EDITOR"
+    bl_region_type = "UI"
+    bl_category = "Refocus"
+
+
 def draw_job_status(layout, wm) -> None:
     """Progress bar and Cancel while a job runs; the last job's message otherwise."""
     if wm.rvr_job_status != "IDLE":
@@ -44,14 +58,11 @@ def draw_job_status(layout, wm) -> None:
         layout.label(text=wm.rvr_job_text, icon="INFO")
 
 
-class RVR_PT_focus(bpy.types.Panel):
+class RVR_PT_focus(_RefocusTab, bpy.types.Panel):
     """Refocus settings of the active strip"""
 
     bl_idname = "RVR_PT_focus"
     bl_label = "Refocus"
-    bl_space_type = "SEQUENCE_EDITOR"
-    bl_region_type = "UI"
-    bl_category = "Refocus"
 
     @classmethod
     def poll(cls, context) -> bool:
@@ -61,8 +72,8 @@ class RVR_PT_focus(bpy.types.Panel):
         layout = self.layout
         layout.use_property_split = True
         layout.use_property_decorate = False
-        strip = compat.active_strip(context)
-        if strip is None or compat.strip_type(strip) not in RENDERABLE_TYPES:
+        strip = refocusable_strip(context)
+        if strip is None:
             layout.label(text="Select a movie or image strip", icon="INFO")
             draw_job_status(layout, context.window_manager)
             return
@@ -115,20 +126,16 @@ class RVR_UL_nfts(bpy.types.UIList):
             row.label(text="not tracked")
 
 
-class RVR_PT_targets(bpy.types.Panel):
+class RVR_PT_targets(_RefocusTab, bpy.types.Panel):
     """Focus targets, pulls, Track and Auto Focus of the active strip"""
 
     bl_idname = "RVR_PT_targets"
     bl_label = "Focus Targets"
-    bl_space_type = "SEQUENCE_EDITOR"
-    bl_region_type = "UI"
-    bl_category = "Refocus"
     bl_parent_id = "RVR_PT_focus"
 
     @classmethod
     def poll(cls, context) -> bool:
-        strip = compat.active_strip(context)
-        return strip is not None and compat.strip_type(strip) in RENDERABLE_TYPES
+        return refocusable_strip(context) is not None
 
     def draw(self, context) -> None:
         layout = self.layout

@@ -5,10 +5,12 @@ and ``rvr batch CLIPS... -o OUT``."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any, Callable, Iterator
 
 from . import __version__
 from .errors import RvrError
@@ -18,6 +20,59 @@ log = logging.getLogger("rvr")
 DEMO_DIR = Path("out/demo_scene")
 DEMO_OUT = Path("out/demo_refocus.mp4")
 DEMO_FRAMES = 48
+
+
+class Interrupted(Exception):
+    """Ctrl-C stopped a command that keeps its partial work: :func:`main` prints the message and
+    returns 130 (raised by :func:`on_interrupt`)."""
+
+
+@contextlib.contextmanager
+def on_interrupt(command: str, message: Callable[[], str]) -> Iterator[None]:
+    """Turn Ctrl-C inside the block into ``rvr COMMAND: message()`` on stderr and exit status 130.
+
+    ``message`` is called after the interrupt, so it can say how far the job got.
+    """
+    try:
+        yield
+    except KeyboardInterrupt:
+        raise Interrupted(f"rvr {command}: {message()}") from None
+
+
+def set_torch_threads(threads: int | None) -> None:
+    """``--threads N``: torch CPU threads (None: torch's choice). Raises RvrError below 1."""
+    if threads is None:
+        return
+    if threads < 1:
+        raise RvrError(f"--threads must be >= 1, got {threads}")
+    import torch
+
+    torch.set_num_threads(threads)
+
+
+def add_run_args(p: argparse.ArgumentParser, iterations: int) -> None:
+    """``-o RUN_DIR``, ``--iterations``, ``--resume``: the run folder of a resumable training run."""
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="RUN_DIR", help="run folder")
+    p.add_argument("--iterations", type=int, default=iterations,
+                   help=f"total iterations of the run (default {iterations})")
+    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its checkpoint")
+
+
+def add_run_control_args(p: argparse.ArgumentParser, checkpoint_every: int) -> None:
+    """``--threads``, ``--checkpoint-every``, ``--seed`` of a training run."""
+    p.add_argument("--threads", type=int, metavar="N",
+                   help="torch CPU threads (default: torch's choice; 1 is much faster when other jobs share the cores)")
+    p.add_argument("--checkpoint-every", type=int, default=checkpoint_every,
+                   help="iterations between checkpoints and plots")
+    p.add_argument("--seed", type=int, default=0, help="seed of the model init and the sample draws")
+
+
+def run_training(command: str, trainer: Any, output: Path, quiet: bool) -> None:
+    """``trainer.run()`` with a progress bar; Ctrl-C (checkpoint saved by the trainer) becomes the
+    ``--resume`` hint and exit status 130."""
+    with on_interrupt(command, lambda: f"interrupted at iteration {trainer.iteration}; checkpoint saved in "
+                                       f"{output}; continue with the same command and --resume"):
+        trainer.run(progress=not quiet)
 
 
 def _aperture_spec(args: argparse.Namespace):
@@ -132,9 +187,7 @@ def add_train_parser(sub) -> None:
     p.add_argument("--user-photos", action="append", type=Path, default=[], metavar="DIR",
                    help="folder of bracketed photos: NAME_small.jpg + NAME_large.jpg [+ NAME_medium.jpg] "
                         "[+ NAME.json], or one sub-folder per shot (repeatable)")
-    p.add_argument("-o", "--output", required=True, type=Path, metavar="RUN_DIR", help="run folder")
-    p.add_argument("--iterations", type=int, default=20000, help="total iterations of the run (default 20000)")
-    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its checkpoint")
+    add_run_args(p, iterations=20000)
     p.add_argument("--lr", type=float, default=1e-4, help="Adam learning rate (paper: 1e-4)")
     p.add_argument("--batch", type=int, default=1, help="samples per step (paper: 1)")
     p.add_argument("--crop", type=int, default=128, help="training crop side in px (default 128)")
@@ -142,6 +195,14 @@ def add_train_parser(sub) -> None:
     p.add_argument("--whole-frame", type=float, default=0.5, metavar="P",
                    help="share of samples that are whole frames shrunk to about crop^2 px instead of crops, as the "
                         "paper trained and as inference sees them (default 0.5)")
+    p.add_argument("--gt-share", type=float, default=0.5, metavar="P",
+                   help="share of draws from ground-truth-only harness frames (clips generated with --no-dof: "
+                        "the supervised terms alone) when there are also frames with shallow-DOF images "
+                        "(default 0.5)")
+    p.add_argument("--inference-max-pixels", type=int, metavar="P",
+                   help="record in the weights that inference runs the network's trunk on frames shrunk to at "
+                        "most P pixels (the scale it was trained at; D is sliced and E gated at full size); "
+                        "default: full size")
     p.add_argument("--vgg19", type=Path, metavar="PATH",
                    help="local VGG-19 state dict (torchvision layout) for the paper's perceptual loss")
     p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
@@ -159,10 +220,7 @@ def add_train_parser(sub) -> None:
                    help=f"pull of E toward 0 on unsaturated pixels (default {sup.sup_exponent_zero:g})")
     p.add_argument("--disparity-invariant", action="store_true",
                    help="supervise D only up to a per-sample least-squares scale and shift (MiDaS-style)")
-    p.add_argument("--threads", type=int, metavar="N",
-                   help="torch CPU threads (default: torch's choice; 1 is much faster when other jobs share the cores)")
-    p.add_argument("--checkpoint-every", type=int, default=500, help="iterations between checkpoints and plots")
-    p.add_argument("--seed", type=int, default=0, help="seed of the model init and the sample draws")
+    add_run_control_args(p, checkpoint_every=500)
     p.add_argument("--photo-max-side", type=int, default=1024, help="bracketed photos are downscaled to this")
     p.add_argument("--align", choices=("homography", "affine", "euclidean", "translation"), default="homography",
                    help="ECC motion model for bracketed photos (default homography)")
@@ -179,12 +237,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     sup = (args.supervised_weight, args.w_disparity, args.w_disparity_grad, args.w_exponent, args.w_exponent_zero)
     if min(sup) < 0:
         raise RvrError(f"--supervised-weight and the --w-* weights must be >= 0, got {sup}")
-    if args.threads is not None:
-        if args.threads < 1:
-            raise RvrError(f"--threads must be >= 1, got {args.threads}")
-        import torch
-
-        torch.set_num_threads(args.threads)
+    set_torch_threads(args.threads)
     weights = LossWeights(smooth=args.w_smooth, supervised=args.supervised_weight, sup_disparity=args.w_disparity,
                           sup_disparity_grad=args.w_disparity_grad, sup_exponent=args.w_exponent,
                           sup_exponent_zero=args.w_exponent_zero, disparity_invariant=args.disparity_invariant)
@@ -192,15 +245,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         run_dir=args.output, data=args.data, user_photos=args.user_photos, iterations=args.iterations,
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
         whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
-        resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align)
+        resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
+        inference_max_pixels=args.inference_max_pixels)
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
-    try:
-        trainer.run(progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"rvr train: interrupted at iteration {trainer.iteration}; checkpoint saved in {args.output}; "
-              "continue with the same command and --resume", file=sys.stderr)
-        return 130
+    run_training("train", trainer, args.output, args.quiet)
     if trainer.report.total:
         print(f"rvr train: {trainer.report.summary()} (see the warnings above)", file=sys.stderr)
     print(f"wrote {args.output / 'estimator.pt'} ({trainer.iteration} iterations, {trainer.wall_time:.0f} s)")
@@ -253,12 +302,9 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         depth_offset=args.depth_offset, depth_points=list(args.depth_points or []),
         depth_is_distance=args.depth_is_distance, no_hdr=args.no_hdr, start=args.start, stop=args.stop,
         fps=args.fps, max_pixels=args.max_pixels))
-    try:
+    with on_interrupt("estimate", lambda: f"stopped after {job.done} of {job.total} frames; they are kept in "
+                                          f"{args.output}; run the same command again to continue"):
         job.run(progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"rvr estimate: stopped after {job.done} of {job.total} frames; they are kept in {args.output}; "
-              "run the same command again to continue", file=sys.stderr)
-        return 130
     print(f"wrote {args.output} ({job.text})")
     return 0
 
@@ -333,6 +379,9 @@ def main(argv: list[str] | None = None) -> int:
     except RvrError as ex:
         print(f"rvr: error: {ex}", file=sys.stderr)
         return 2
+    except Interrupted as ex:
+        print(ex, file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("rvr: cancelled; partial outputs removed", file=sys.stderr)
         return 130

@@ -65,3 +65,47 @@ def face_image(h: int, w: int, faces: list[tuple[int, int, int, float]], seed: i
         mh = max(1, int(round(1 + mouth * r * 0.35)))
         cv2.ellipse(img, (cx, cy + int(r * 0.5)), (r // 3, mh), 0, 0, 360, (60, 10, 10), -1)
     return img
+
+
+def talking_blobs(n: int = 64, size=(200, 120), turns=((8, 27, 0), (36, 55, 1)), pan: float = 1.0,
+                  noise: float = 2.0, fps: float = 25.0, seed: int = 5):
+    """Two textured blobs ("heads", no face a detector would find) whose dark "mouth" opens with
+    the audio envelope of their own turns, on a textured background the camera pans across.
+
+    turns: (first frame, last frame, speaker 0 or 1) of each voiced turn. pan: px/frame of
+    camera motion (everything shifts left). noise: sigma of per-frame grey noise (render noise).
+    Returns frames (list of uint8 RGB), envelope (n,) float32, voiced (n,) bool and the blobs'
+    centres per frame as a list of ((x0, y0), (x1, y1)) px."""
+    w, h = size
+    rng = np.random.default_rng(seed)
+    margin = int(abs(pan) * n) + 4
+    bg = (texture(h, w + margin, seed) * 0.6 + 50).astype(np.uint8)
+    heads = [texture(36, 30, seed + 1 + i) for i in range(2)]
+    env = np.zeros(n, np.float32)
+    voiced = np.zeros(n, bool)
+    opening = np.zeros((2, n), np.float32)
+    for a, b, who in turns:
+        k = np.arange(a, b + 1)
+        syll = np.abs(np.sin((k - a) * 2 * np.pi * 3.7 / fps + rng.uniform(0, 3))) * rng.uniform(0.5, 1.0, k.size)
+        env[k] = syll
+        voiced[k] = True
+        opening[who, k] = syll
+    frames, centres = [], []
+    for k in range(n):
+        off = int(round(pan * k))
+        f = bg[:, off:off + w].copy()
+        cs = []
+        for i, cx0 in enumerate((int(w * 0.28), int(w * 0.72))):
+            cx, cy = cx0 - off + int(round(pan * n / 2)), h // 2
+            x0, y0 = cx - 15, cy - 18
+            patch = f[y0:y0 + 36, x0:x0 + 30]
+            disc = np.zeros((36, 30), np.uint8)
+            cv2.ellipse(disc, (15, 18), (14, 17), 0, 0, 360, 1, -1)
+            patch[disc > 0] = (heads[i][disc > 0] * 0.5 + 100).astype(np.uint8)
+            mh = int(round(1 + 5 * opening[i, k]))
+            cv2.ellipse(patch, (15, 27), (6, mh), 0, 0, 360, (40, 10, 10), -1)
+            cs.append((float(cx), float(cy)))
+        f = np.clip(f.astype(np.float32) + rng.normal(0, noise, f.shape), 0, 255).astype(np.uint8)
+        frames.append(f)
+        centres.append(tuple(cs))
+    return frames, env, voiced, centres

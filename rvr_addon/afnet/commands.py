@@ -5,6 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..cli import add_run_args, add_run_control_args, run_training, set_torch_threads
 from ..errors import RvrError
 
 
@@ -25,9 +26,7 @@ def add_parser(sub) -> None:
     p.add_argument("--annotations", action="append", type=Path, default=[], metavar="FILE",
                    help="focus annotation file (rvr-laaf-focus-annotations/1: editor exports and weak labels; "
                         "see rvr_addon/afnet/annotations.py; repeatable)")
-    p.add_argument("-o", "--output", required=True, type=Path, metavar="RUN_DIR", help="run folder")
-    p.add_argument("--iterations", type=int, default=10000, help="total iterations of the run (default 10000)")
-    p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its checkpoint")
+    add_run_args(p, iterations=10000)
     p.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
     p.add_argument("--batch", type=int, default=8, help="queries per step (default 8)")
     p.add_argument("--weak-weight", type=float, default=0.3, metavar="W",
@@ -48,10 +47,7 @@ def add_parser(sub) -> None:
                    help=f"clip frames between sampled frames (default {d.sample_step}, as the paper)")
     p.add_argument("--stride", type=int, default=d.stride,
                    help=f"clip frames between queries at inference (default {d.stride}, as the paper)")
-    p.add_argument("--threads", type=int, metavar="N",
-                   help="torch CPU threads (default: torch's choice; 1 is faster when other jobs share the cores)")
-    p.add_argument("--checkpoint-every", type=int, default=250, help="iterations between checkpoints and plots")
-    p.add_argument("--seed", type=int, default=0, help="seed of the model init and the sample draws")
+    add_run_control_args(p, checkpoint_every=250)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_afnet)
 
@@ -66,12 +62,7 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
                              s=args.units, sample_step=args.sample_step, stride=args.stride).check()
     except ValueError as ex:
         raise RvrError(f"--size/--f-t/--units/--sample-step/--stride: {ex}") from None
-    if args.threads is not None:
-        if args.threads < 1:
-            raise RvrError(f"--threads must be >= 1, got {args.threads}")
-        import torch
-
-        torch.set_num_threads(args.threads)
+    set_torch_threads(args.threads)
     if not 0.0 <= args.pos_fraction <= 1.0 or args.tolerance <= 0:
         raise RvrError(f"--pos-fraction must be in [0, 1] and --tolerance > 0 (got {args.pos_fraction}, "
                        f"{args.tolerance})")
@@ -83,11 +74,6 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
     trainer = AFNetTrainer(settings, progress=not args.quiet)
     print(f"training AF-Net ({trainer.model.parameter_count()} parameters, receptive field "
           f"{trainer.model.config.span} frames) on {trainer.report.summary()}", file=sys.stderr)
-    try:
-        trainer.run(progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"rvr train-afnet: interrupted at iteration {trainer.iteration}; checkpoint saved in {args.output}; "
-              "continue with the same command and --resume", file=sys.stderr)
-        return 130
+    run_training("train-afnet", trainer, args.output, args.quiet)
     print(f"wrote {args.output / 'afnet.pt'} ({trainer.iteration} iterations, {trainer.wall_time:.0f} s)")
     return 0

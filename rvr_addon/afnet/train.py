@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import csv
 import json
-import logging
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,12 +38,9 @@ import torch.nn.functional as F
 
 from .. import __version__
 from ..errors import InputError, RvrError
-from ..estimate.train import _atomic_text, _atomic_torch_save, current_rss_mb, deferred_interrupt, release_memory
-from ..io.paths import temp_sibling
+from ..training_run import TrainingRun, save_png, save_weights
 from .data import Sample, TrainingSet, load_training_clips
 from .model import AFNet, AFNetConfig
-
-log = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "rvr-laaf-afnet-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
@@ -102,8 +97,17 @@ def batch_loss(model: AFNet, samples: list[Sample], w_map: float = 1.0, w_nft: f
     return total, parts
 
 
-class AFNetTrainer:
+class AFNetTrainer(TrainingRun):
     """A resumable AF-Net training run: ``step()`` / ``progress`` / ``cancel()`` (module docstring)."""
+
+    checkpoint_format = CHECKPOINT_FORMAT
+    log_fields = LOG_FIELDS
+    weights_name = "afnet.pt"
+    bar_desc = "train-afnet"
+    run_noun = "an AF-Net run"
+    checkpoint_noun = "an AF-Net training checkpoint"
+    blank_nonfinite = True  # p_pos / p_neg are NaN on a batch without such samples
+    settings: AFNetTrainSettings
 
     def __init__(self, settings: AFNetTrainSettings, progress: bool = False) -> None:
         s = self.settings = settings
@@ -116,14 +120,7 @@ class AFNetTrainer:
         if s.weak_weight < 0 or s.w_map < 0 or s.w_nft < 0:
             raise InputError(f"--weak-weight, --w-map and --w-nft must be >= 0 (got {s.weak_weight}, {s.w_map}, "
                              f"{s.w_nft})")
-        self.run_dir = Path(s.run_dir)
-        self.checkpoint_path = self.run_dir / "checkpoint.pt"
-        self.log_path = self.run_dir / "loss_log.csv"
-        if self.checkpoint_path.exists() and not s.resume:
-            raise InputError(f"'{self.run_dir}' already holds an AF-Net run (checkpoint.pt): pass --resume to "
-                             "continue it, or choose a new -o folder")
-        if s.resume and not self.checkpoint_path.exists():
-            raise InputError(f"--resume: '{self.checkpoint_path}' does not exist; start the run without --resume")
+        self._check_run_dir()
         checkpoint = self._load_checkpoint() if s.resume else None
         model_cfg = AFNetConfig.from_dict(json.loads(checkpoint["model_config"])) if checkpoint else s.model.check()
         self.run_dir.mkdir(parents=True, exist_ok=True)
@@ -131,171 +128,20 @@ class AFNetTrainer:
                                                  progress=progress)
         self.data = TrainingSet(clips, model_cfg, pos_fraction=s.pos_fraction, weak_weight=s.weak_weight,
                                 tolerance=s.tolerance)
-        torch.manual_seed(s.seed)
-        self.rng = np.random.default_rng(s.seed)
-        self.model = AFNet(model_cfg)
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=s.lr)
-        self.iteration = 0
-        self.wall_before = 0.0
-        if checkpoint is not None:
-            self._restore(checkpoint)
-        self._started = time.perf_counter()
-        self._cancelled = False
-        self.last: dict[str, float] = {}
-        self._log_file = None
-        self._open_log()
-        _atomic_text(self.run_dir / "run.json", json.dumps(self._run_record(), indent=1))
+        self._start(lambda: AFNet(model_cfg), checkpoint)
 
-    # -- checkpoints ----------------------------------------------------------------------
-    def _load_checkpoint(self) -> dict:
-        try:
-            ck = torch.load(self.checkpoint_path, map_location="cpu", weights_only=True)
-        except Exception as ex:  # noqa: BLE001 - any unpickling failure means a corrupt file
-            raise InputError(f"checkpoint '{self.checkpoint_path}' cannot be read ({type(ex).__name__}: {ex}); "
-                             "delete it to start over (or restore a copy)") from ex
-        if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-            raise InputError(f"'{self.checkpoint_path}' is not an AF-Net training checkpoint ({CHECKPOINT_FORMAT})")
-        return ck
+    def _plot_losses(self, out: Path) -> None:
+        plot_losses(self.log_path, out)
 
-    def _restore(self, ck: dict) -> None:
-        self.model.load_state_dict(ck["model"])
-        self.optimizer.load_state_dict(ck["optimizer"])
-        for group in self.optimizer.param_groups:
-            group["lr"] = self.settings.lr
-        self.iteration = int(ck["iteration"])
-        self.wall_before = float(ck["wall_time_s"])
-        self.rng.bit_generator.state = json.loads(ck["numpy_rng"])
-        torch.set_rng_state(ck["torch_rng"])
-        log.info("resumed %s at iteration %d", self.checkpoint_path, self.iteration)
-
-    def save_checkpoint(self) -> None:
-        """Write checkpoint.pt atomically (model, Adam, iteration, RNG, wall time)."""
-        _atomic_torch_save({
-            "format": CHECKPOINT_FORMAT, "iteration": self.iteration, "wall_time_s": self.wall_time,
-            "model_config": json.dumps(self.model.config.to_dict()), "model": self.model.state_dict(),
-            "optimizer": self.optimizer.state_dict(), "numpy_rng": json.dumps(self.rng.bit_generator.state),
-            "torch_rng": torch.get_rng_state(),
-        }, self.checkpoint_path)
-        if self._log_file is not None:
-            self._log_file.flush()
-
-    @property
-    def wall_time(self) -> float:
-        """Training seconds over all sessions of this run."""
-        return self.wall_before + (time.perf_counter() - self._started)
-
-    # -- log and plot ---------------------------------------------------------------------
-    def _open_log(self) -> None:
-        rows = []
-        if self.log_path.exists() and self.settings.resume:
-            with self.log_path.open(newline="") as f:
-                rows = [r for r in csv.DictReader(f) if r.get("iteration", "").isdigit()
-                        and int(r["iteration"]) <= self.iteration]
-        tmp = temp_sibling(self.log_path, ".csv")
-        with tmp.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=LOG_FIELDS)
-            w.writeheader()
-            w.writerows({k: r.get(k, "") for k in LOG_FIELDS} for r in rows)
-        os.replace(tmp, self.log_path)
-        self._log_file = self.log_path.open("a", newline="")
-        self._log = csv.DictWriter(self._log_file, fieldnames=LOG_FIELDS)
-
-    def plot(self) -> None:
-        """Write loss.png (skipped with one warning without matplotlib; the CSV has it all)."""
-        if self._log_file is not None:
-            self._log_file.flush()
-        try:
-            plot_losses(self.log_path, self.run_dir / "loss.png")
-        except ImportError as ex:
-            if not getattr(self, "_warned_plot", False):
-                log.warning("no loss plot (%s); the numbers are in %s", ex, self.log_path)
-                self._warned_plot = True
-
-    # -- the job --------------------------------------------------------------------------
-    @property
-    def progress(self) -> float:
-        """Fraction of the iterations done, 0..1."""
-        return min(self.iteration / self.settings.iterations, 1.0)
-
-    @property
-    def done(self) -> bool:
-        return self.iteration >= self.settings.iterations or self._cancelled
-
-    def step(self) -> bool:
-        """One optimisation step on a batch; False once the run has reached its iteration count."""
-        if self.done:
-            return False
+    def _backward(self) -> tuple[dict[str, float], dict[str, str]]:
         s = self.settings
-        self.model.train()
-        self.optimizer.zero_grad(set_to_none=True)
         samples = [self.data.draw(self.rng) for _ in range(s.batch)]
         total, parts = batch_loss(self.model, samples, s.w_map, s.w_nft)
         if not np.isfinite(parts["total"]):
             raise RvrError(f"the AF-Net loss became {parts['total']} at iteration {self.iteration + 1}; lower --lr "
                            "and --resume from the last checkpoint")
         total.backward()
-        del total
-        with deferred_interrupt():  # the update, its count and its log row happen together or not at all
-            norm = torch.nn.utils.clip_grad_norm_(self.model.parameters(), s.grad_clip)
-            self.optimizer.step()
-            if (self.iteration + 1) % 50 == 0:
-                release_memory()
-            parts["grad_norm"] = float(norm)
-            parts["rss_mb"] = current_rss_mb()
-            self.iteration += 1
-            self.last = parts
-            row = {k: "" for k in LOG_FIELDS}
-            row.update({k: f"{v:.6g}" for k, v in parts.items() if k in LOG_FIELDS and np.isfinite(v)})
-            row.update(iteration=self.iteration, wall_s=f"{self.wall_time:.2f}")
-            self._log.writerow(row)
-            if self.iteration % s.checkpoint_every == 0:
-                self.save_checkpoint()
-        if self.iteration % s.checkpoint_every == 0:
-            self.plot()
-        if self.iteration >= s.iterations:
-            self.finish()
-            return False
-        return True
-
-    def finish(self) -> None:
-        """Final checkpoint, plot and exported weights."""
-        self.save_checkpoint()
-        self.plot()
-        self.export(self.run_dir / "afnet.pt")
-        self.close()
-
-    def cancel(self) -> None:
-        """Stop (Ctrl-C): save a checkpoint so ``--resume`` continues from here."""
-        self._cancelled = True
-        self.save_checkpoint()
-        self.plot()
-        self.close()
-
-    def close(self) -> None:
-        if self._log_file is not None:
-            self._log_file.close()
-            self._log_file = None
-
-    def run(self, progress: bool = True) -> None:
-        """Run to the end with a tqdm bar; on Ctrl-C save a checkpoint, then re-raise."""
-        from tqdm import tqdm
-
-        s = self.settings
-        bar = tqdm(total=s.iterations, initial=self.iteration, unit="it", desc="train-afnet", disable=not progress)
-        try:
-            while self.step():
-                bar.update(1)
-                if self.iteration % 10 == 0:
-                    bar.set_postfix(loss=f"{self.last.get('total', 0):.4f}", refresh=False)
-            bar.update(s.iterations - bar.n)
-        except KeyboardInterrupt:
-            self.cancel()
-            raise
-        except BaseException:
-            self.close()
-            raise
-        finally:
-            bar.close()
+        return parts, {}
 
     # -- export ---------------------------------------------------------------------------
     def _run_record(self) -> dict:
@@ -307,26 +153,19 @@ class AFNetTrainer:
                 "model": self.model.config.to_dict(), "parameters": self.model.parameter_count(),
                 "training_data": self.report.to_dict()}
 
-    def export(self, path: Path) -> Path:
-        """Write the shippable weights (state dict + JSON header) and the header as .json."""
-        training = {k: v for k, v in self._run_record().items() if k not in ("model", "parameters", "engine_version")}
+    def _export_weights(self, path: Path, training: dict) -> Path:
         return export_weights(self.model, path, self.iteration, self.wall_time, training)
 
 
 def export_weights(model: AFNet, path: Path, iterations: int, wall_time_s: float, training: dict) -> Path:
     """Write ``{"format", "header" (JSON text), "state_dict"}`` atomically, and the header as .json."""
-    path = Path(path)
     cfg = model.config
     header = {"format": WEIGHTS_FORMAT, "architecture": "AFNet", "config": cfg.to_dict(),
               "parameters": model.parameter_count(), "engine_version": __version__,
               "receptive_field_frames": cfg.span, "iterations": int(iterations),
               "wall_time_s": round(float(wall_time_s), 1), "training": training,
               "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-    state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_torch_save({"format": WEIGHTS_FORMAT, "header": json.dumps(header), "state_dict": state}, path)
-    _atomic_text(path.with_suffix(".json"), json.dumps(header, indent=1))
-    return path
+    return save_weights(model, path, WEIGHTS_FORMAT, header)
 
 
 def plot_losses(log_path: Path, out: Path) -> None:
@@ -383,9 +222,5 @@ def plot_losses(log_path: Path, out: Path) -> None:
     a2.set_ylabel("NFT probability")
     a2.grid(True, alpha=0.3)
     a2.legend(fontsize=8)
-    fig.tight_layout()
-    tmp = temp_sibling(out, ".png")
-    fig.savefig(tmp, format="png")
-    plt.close(fig)
-    os.replace(tmp, out)
+    save_png(fig, out)
 

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from pathlib import Path
+
+from ..cli import on_interrupt
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -93,11 +94,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     import distributed  # noqa: F401 - configures its loggers on import; then quieten them
 
     logging.getLogger("distributed").setLevel(logging.WARNING)
-    try:
+    with on_interrupt("batch", lambda: "cancelled; finished clips and cached frames are kept; run the same command "
+                                       "again to continue"):
         report = run_batch(clips, settings, cluster, progress=not args.quiet)
-    except KeyboardInterrupt:
-        print("rvr batch: cancelled; finished clips and cached frames are kept; run the same command again to "
-              "continue", file=sys.stderr)
-        return 130
     print(report.table())
     return 1 if report.count("failed") else 0

@@ -18,6 +18,12 @@ Each draw picks one of the frame's sample kinds with equal probability:
   same focus, disparity *scaled*;
 * ``focal`` triplet: input -> ``large`` + ``focusB``, same aperture, disparity *shifted*.
 
+* ``gt`` (ours): frames of clips without training sidecars (``generate --no-dof`` or
+  ``--train-every 0``: the deep pass alone, ~6x cheaper to render) carry no shallow-DOF image,
+  only the ground truth below; they train the supervised terms alone. A draw takes such a frame
+  with probability ``gt_share`` (when both kinds of source exist), so cheap, varied scenes teach
+  disparity and HDR while the triplets keep the paper's rendering loss.
+
 Harness samples also carry the frame's ground truth for the supervised terms (ours, see
 :mod:`.losses`): ``gt/disparity`` (channel D, px at the native width) resampled by exact
 nearest neighbour (never a blend of a foreground and a background depth) and multiplied by the
@@ -71,7 +77,7 @@ log = logging.getLogger(__name__)
 HARNESS_FORMAT = "rvr-laaf-harness/"
 PHOTO_EXTENSIONS = (".jpg", ".jpeg", ".png", ".tif", ".tiff")
 PHOTO_ROLES = ("small", "large", "medium", "focusB")
-KINDS = ("pair", "aperture", "focal")
+KINDS = ("pair", "aperture", "focal", "gt")
 _SIDECAR = re.compile(r"frame_(\d+)\.json$")
 SATURATED = 254.0 / 255.0
 """An input pixel whose brightest channel reaches this sRGB value is clipped (saturated)."""
@@ -115,7 +121,10 @@ class SampleSource:
 
     @property
     def kinds(self) -> tuple[str, ...]:
-        """The sample kinds this source supports (always ``pair``)."""
+        """The sample kinds this source supports: ``pair`` [+ triplets], or ``gt`` alone for a
+        frame with ground truth and no shallow-DOF member."""
+        if "large" not in self.members:
+            return ("gt",)
         return ("pair",) + tuple(k for k in ("aperture", "focal") if self.third.get(k))
 
 
@@ -124,7 +133,8 @@ class TrainSample:
     """A drawn, resized and cropped sample; arrays are float32 (h, w, 3) sRGB in [0, 1].
 
     frame_width: width in px of the whole resized frame the crop comes from (D_rel -> px).
-    alpha, beta: the primary target's factors, beta in px at the working resolution.
+    alpha, beta: the primary target's factors, beta in px at the working resolution (kind ``gt``:
+        no target; ``target`` is the input, unused).
     adjusted: (third image, alpha, beta) of a triplet, or None for a pair.
     gt_disparity: (h, w) float32 ground-truth D in px at the working resolution (``frame_width``),
         NaN where unknown; None without ground truth (photos).
@@ -371,7 +381,7 @@ def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
         sidecars = sorted((p for p in train.glob("frame_*.json") if _SIDECAR.search(p.name)), key=natural_key) \
             if train.is_dir() else []
         if not sidecars:
-            report.add("clip without training frames", f"clip {clip} has no train/frame_*.json sidecars; skipped")
+            sources += _ground_truth_sources(clip, manifest, config_hash, width, report)
             continue
         for sidecar in sidecars:
             frame = int(_SIDECAR.search(sidecar.name).group(1))
@@ -384,6 +394,30 @@ def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
             except (InputError, OSError, ValueError) as ex:
                 report.add("bad sidecar", f"training frame {frame} of {clip}: {ex}; skipped")
     return sources
+
+
+def _ground_truth_sources(clip: Path, manifest: dict, config_hash: str | None, width: int | None,
+                          report: SkipReport) -> list[SampleSource]:
+    """Kind ``gt`` sources: every complete frame of a clip without training sidecars that has
+    its input, ``gt/disparity`` and ``gt/hdr``."""
+    frames = int((manifest.get("config") or {}).get("frames") or 0)
+    found: list[SampleSource] = []
+    for frame in range(1, frames + 1):
+        inp = clip / "input" / f"frame_{frame:05d}.png"
+        gt_d = clip / "gt" / "disparity" / f"frame_{frame:05d}.exr"
+        gt_h = clip / "gt" / "hdr" / f"frame_{frame:05d}.exr"
+        reason = frame_complete(clip, frame, config_hash)
+        if reason is None and not (inp.is_file() and gt_d.is_file() and gt_h.is_file()):
+            reason = "its input or ground-truth disparity/HDR is missing"
+        if reason:
+            report.add("incomplete frame", f"frame {frame} of {clip} is incomplete ({reason}); skipped")
+            continue
+        found.append(SampleSource(f"{clip.name}/frame_{frame:05d}", "harness", inp, {},
+                                  width or _image_width(inp), {}, gt_d, gt_h))
+    if not found:
+        report.add("clip without training frames", f"clip {clip} has neither training sidecars nor complete "
+                   "ground-truth frames; skipped")
+    return found
 
 
 def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None) -> SampleSource:
@@ -667,6 +701,7 @@ class Augment:
     scale_range: tuple[float, float] = (0.5, 1.0)
     flip: bool = True
     whole_frame: float = 0.0
+    gt_share: float = 0.5
 
 
 class TrainingSet:
@@ -680,6 +715,8 @@ class TrainingSet:
         self.augment = augment
         self.report = report if report is not None else SkipReport()
         self._bad: set[str] = set()
+        self._gt_only = [s for s in self.sources if s.kinds == ("gt",)]
+        self._rendered = [s for s in self.sources if s.kinds != ("gt",)]
 
     def __len__(self) -> int:
         return len(self.sources)
@@ -694,9 +731,14 @@ class TrainingSet:
                 "skipped": dict(self.report.counts)}
 
     def draw(self, rng: np.random.Generator, retries: int = 20) -> TrainSample:
-        """A random sample (uniform over sources, then over the source's kinds)."""
+        """A random sample: a ground-truth-only frame with probability ``augment.gt_share`` when
+        both kinds of source exist, else uniform over the others; then uniform over the
+        source's kinds."""
         for _ in range(retries):
-            src = self.sources[int(rng.integers(len(self.sources)))]
+            pool = self.sources
+            if self._gt_only and self._rendered:
+                pool = self._gt_only if float(rng.random()) < self.augment.gt_share else self._rendered
+            src = pool[int(rng.integers(len(pool)))]
             if src.name in self._bad:
                 continue
             try:
@@ -710,8 +752,8 @@ class TrainingSet:
         """Load, resize, crop and flip one sample of ``src`` (kind drawn from its kinds)."""
         kinds = src.kinds
         kind = kinds[int(rng.integers(len(kinds)))]
-        names = ["large"]
-        if kind != "pair":
+        names = [] if kind == "gt" else ["large"]
+        if kind not in ("pair", "gt"):
             options = src.third[kind]
             names.append(options[int(rng.integers(len(options)))])
         image = read_srgb(src.input)
@@ -747,9 +789,8 @@ class TrainingSet:
             out = arr[y0:y0 + ch, x0:x0 + cw]
             return np.ascontiguousarray(out[:, ::-1] if flip else out, dtype=np.float32)
 
-        large = src.members["large"]
         adjusted = None
-        if kind != "pair":
+        if kind not in ("pair", "gt"):
             third = src.members[names[1]]
             adjusted = (prep(members[1]), third.alpha, third.beta * px_scale)
         inp = prep(image)
@@ -759,5 +800,9 @@ class TrainingSet:
         if src.gt_hdr is not None:
             hdr = crop_flip(resize_radiance(read_gt_radiance(src.gt_hdr, (w, h)), size))
             gt_e, sat = exponent_target(inp, hdr)
+        if kind == "gt":  # no shallow-DOF image: the supervised terms alone (target unused)
+            return TrainSample(src.name, kind, inp, inp, 1.0, 0.0, frame_width, None, gt_d, gt_e, sat,
+                               float(src.native_width))
+        large = src.members["large"]
         return TrainSample(src.name, kind, inp, prep(members[0]), large.alpha, large.beta * px_scale,
                            frame_width, adjusted, gt_d, gt_e, sat, float(src.native_width))

@@ -13,7 +13,8 @@ units and that difference is a local maximum; e is refined to the first frame pa
 of the two levels.
 
 Detector availability: a detector with no map on a frame (no face, nobody speaking) makes the
-intersection empty, so the previous level is kept; a detector that cannot run on the clip at all (speech without audio) is dropped and
+intersection empty, so the previous level is kept, unless it is a secondary detector and the
+primary has a region (then the primary's region is used alone, as below); a detector that cannot run on the clip at all (speech without audio) is dropped and
 the preset falls back (``FALLBACKS``).
 
 Deviation from the paper: the action preset's saliency is a classical (not learned) saliency
@@ -75,12 +76,17 @@ def intersect(outputs: dict[str, DetectorOutput], primary: str | None = None, mi
     this frame (an empty intersection) or no detector is available. primary: the preset's
     primary detector (``PRIMARY``); when the intersection keeps less than ``keep_fraction`` of
     the primary's region (and that region covers at least ``min_area`` of the frame), the
-    primary's region is used alone.
+    primary's region is used alone; so is it when another detector found nothing on this frame
+    (e.g. speech localised by audio-visual synchrony where the face detector sees no face).
     """
     live = {n: o for n, o in outputs.items() if o.available}
     if not live:
         return None, ()
     names = tuple(live)
+    if primary in live and len(live) > 1 and live[primary].heat is not None:
+        own = live[primary].heat >= 0.5
+        if own.mean() >= min_area and any(o.heat is None for o in live.values()):
+            return own, (primary,)
     if any(o.heat is None for o in live.values()):
         return None, names
     mask = np.logical_and.reduce([o.heat >= 0.5 for o in live.values()])

@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from ..cli import on_interrupt
 from ..errors import RvrError
 
 
@@ -93,11 +93,8 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
         afnet_threshold=args.afnet_threshold)
     job = AutofocusJob(settings)
-    try:
+    with on_interrupt("autofocus", lambda: "cancelled; nothing written"):
         result = job.run(progress=not args.quiet)
-    except KeyboardInterrupt:
-        print("rvr autofocus: cancelled; nothing written", file=sys.stderr)
-        return 130
     write_focus_file(args.output, result)
     if args.plot:
         plot_focus(args.plot, result)

@@ -514,12 +514,20 @@ class AutofocusJob:
             for ev in tg.events:
                 tracking.append({"target": i, **ev})
         metrics = {n: d.metrics() for n, d in self.detectors.items()}
+        fallback = self.fallback_note
         if self._combo and "face" in self.detectors and not self.detectors["face"].metrics()["frames_with_faces"]:
-            log.warning("no face was found in %s; the %s preset had nothing to intersect with faces",
-                        s.input, s.preset)
+            sync = int(metrics.get("speech", {}).get("synchrony_frames", 0)) if "speech" in self._combo else 0
+            if sync:
+                fallback = fallback or (f"no face was found; the {s.preset} preset used the speech detector's "
+                                        f"audio-visual synchrony alone ({sync} frames)")
+                log.warning("no face was found in %s; the %s preset fell back to the speech detector's audio-visual "
+                            "synchrony map alone (speaker localised on %d frames)", s.input, s.preset, sync)
+            else:
+                log.warning("no face was found in %s; the %s preset had nothing to intersect with faces",
+                            s.input, s.preset)
         seconds = time.perf_counter() - self._t0
         settings = {"preset": s.preset, "preset_used": self.preset_used if self._combo else None,
-                    "fallback": self.fallback_note or None, "window_s": 0.0 if self.causal else s.window_s,
+                    "fallback": fallback or None, "window_s": 0.0 if self.causal else s.window_s,
                     "window_frames": self.window, "causal": self.causal, "pull_frames": s.pull.pull_frames,
                     "lead_frames": s.pull.lead_frames, "profile": s.pull.profile, "hold_frames": s.pull.hold_frames,
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,

@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
+
+from ..cli import on_interrupt
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -60,11 +61,8 @@ def cmd_stabilize(args: argparse.Namespace) -> int:
                                 outlier_scale_e=args.outlier_scale_e, flow_preset=args.flow_preset,
                                 flow_max_side=args.flow_size, cut_fraction=args.cut_fraction)
     job = StabilizeJob(StabilizeSettings(cache=args.cache, input=args.input, temporal=settings, force=args.force))
-    try:
+    with on_interrupt("stabilize", lambda: f"stopped; {job.written} frames stored in {args.cache}; run the same "
+                                           "command again to continue"):
         job.run(progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"rvr stabilize: stopped; {job.written} frames stored in {args.cache}; run the same command again to "
-              "continue", file=sys.stderr)
-        return 130
     print(f"stabilized {args.cache} ({job.text})")
     return 0

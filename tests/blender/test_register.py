@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import pytest
 
+from layout_recorder import LayoutRecorder
+
 bpy = pytest.importorskip("bpy")
 
 OPERATORS = {"render_strip": "RVR_OT_render_strip", "cancel_job": "RVR_OT_cancel_job",
@@ -96,37 +98,6 @@ def test_compat_helpers(registered, factory_scene):
     assert compat.fcurve_find(factory_scene, path) is None
 
 
-class _Recorder:
-    """Stands in for UILayout in a smoke draw: records what is drawn, returns itself for rows."""
-
-    def __init__(self):
-        self.calls = []
-        self.use_property_split = False
-        self.use_property_decorate = True
-
-    def _sub(self, *_a, **_k):
-        return self
-
-    row = column = box = split = _sub
-
-    def prop(self, data, name, **kw):
-        getattr(data, name)  # fails on a misspelled property
-        self.calls.append(("prop", name))
-
-    def operator(self, idname, **kw):
-        self.calls.append(("operator", idname, kw.get("icon")))
-        return type("OpProps", (), {})()
-
-    def label(self, **kw):
-        self.calls.append(("label", kw.get("text")))
-
-    def progress(self, **kw):
-        self.calls.append(("progress", kw.get("factor")))
-
-    def separator(self, **kw):
-        pass
-
-
 def test_panel_draw_smoke(registered, factory_scene, tmp_path):
     import cv2
     import numpy as np
@@ -139,7 +110,7 @@ def test_panel_draw_smoke(registered, factory_scene, tmp_path):
     strip.rvr.aperture_shape = "POLYGON"
     registered.operators.fcurves.write_keyframes(strip, "focus_disparity", [(1, 0.5)])
     panel = bpy.types.RVR_PT_focus
-    recorder = _Recorder()
+    recorder = LayoutRecorder()
     panel.draw(type("P", (), {"layout": recorder})(), bpy.context)
     drawn = {c[1] for c in recorder.calls}
     assert {"focus_disparity", "aperture", "aperture_shape", "blades", "rotation", "depth_path", "hdr_path",
@@ -149,7 +120,7 @@ def test_panel_draw_smoke(registered, factory_scene, tmp_path):
     wm = bpy.context.window_manager
     wm.rvr_job_status, wm.rvr_job_progress, wm.rvr_job_text = "RUNNING", 50.0, "4/8 frames"
     try:
-        recorder = _Recorder()
+        recorder = LayoutRecorder()
         panel.draw(type("P", (), {"layout": recorder})(), bpy.context)
         assert ("progress", 0.5) in recorder.calls and ("operator", "rvr.cancel_job", "CANCEL") in recorder.calls
         assert bpy.ops.rvr.cancel_job.poll() and not bpy.ops.rvr.render_strip.poll()

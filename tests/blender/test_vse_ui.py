@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import VSE_H, VSE_W
+from layout_recorder import LayoutRecorder
 
 bpy = pytest.importorskip("bpy")
 
@@ -36,52 +37,19 @@ def test_register_round_trip_includes_the_vse_tool(addon_package, factory_scene)
         assert not addon_package.operators.props.RVR_PG_nft.is_registered
 
 
-class _Recorder:
-    def __init__(self):
-        self.calls = []
-        self.use_property_split = False
-        self.use_property_decorate = True
-
-    def _sub(self, *_a, **_k):
-        return self
-
-    row = column = box = split = _sub
-
-    def prop(self, data, name, **kw):
-        getattr(data, name)
-        self.calls.append(("prop", name))
-
-    def operator(self, idname, **kw):
-        self.calls.append(("operator", idname))
-        return type("OpProps", (), {})()
-
-    def template_list(self, listtype, list_id, data, prop, active_data, active_prop, **kw):
-        getattr(data, prop), getattr(active_data, active_prop)
-        self.calls.append(("list", listtype))
-
-    def label(self, **kw):
-        self.calls.append(("label", kw.get("text")))
-
-    def progress(self, **kw):
-        pass
-
-    def separator(self, **kw):
-        pass
-
-
 def test_panels_draw(registered, movie_strip):
     bpy.ops.rvr.add_focus_target(x=20, y=20, frame=11)
-    rec = _Recorder()
+    rec = LayoutRecorder()
     bpy.types.RVR_PT_focus.draw(type("P", (), {"layout": rec})(), bpy.context)
     names = {c[1] for c in rec.calls}
     assert {"rvr.analyze", "rvr.render_strip", "preview_mode", "render_format", "render_size"} <= names
-    rec = _Recorder()
+    rec = LayoutRecorder()
     assert bpy.types.RVR_PT_targets.poll(bpy.context)
     bpy.types.RVR_PT_targets.draw(type("P", (), {"layout": rec})(), bpy.context)
     names = {c[1] for c in rec.calls}
     assert {"RVR_UL_nfts", "rvr.add_focus_target", "rvr.track_targets", "rvr.auto_focus", "pull_frames",
             "lead_frames", "pull_profile", "autofocus_preset", "lookahead_s", "box", "keep"} <= names
-    rec = _Recorder()
+    rec = LayoutRecorder()
     item = movie_strip.rvr.nfts[0]
     bpy.types.RVR_UL_nfts.draw_item(None, bpy.context, rec, movie_strip.rvr, item, 0, None, "", 0)
     assert ("label", "not tracked") in rec.calls

@@ -269,3 +269,41 @@ def test_whole_frame_samples_and_photos_without_ground_truth(dataset, tmp_path):
     assert src.gt_disparity is None and src.gt_hdr is None
     s = TrainingSet([src], Augment(crop=16)).draw(np.random.default_rng(0))
     assert s.gt_disparity is None and s.gt_exponent is None and s.saturated is None
+
+
+def test_ground_truth_only_clips_train_the_supervised_terms(tmp_path):
+    """A clip without training sidecars (generate --no-dof) gives kind-``gt`` samples: the input and
+    its ground truth, no shallow-DOF image; the loss is the supervised terms alone, and draws take
+    them with probability gt_share when rendered samples exist too."""
+    import shutil
+
+    import torch
+
+    from rvr_addon.estimate.losses import LossWeights
+    from rvr_addon.estimate.train import sample_loss
+    from rvr_addon.estimate.unet import EstimatorNet
+
+    make_clip(tmp_path / "deep", seed=3, frames=3, width=48, height=40)
+    shutil.rmtree(tmp_path / "deep" / "train")  # what generate --no-dof writes: no training passes
+    for marker in (tmp_path / "deep" / "done").glob("*.json"):
+        rec = json.loads(marker.read_text())
+        rec["files"] = {k: v for k, v in rec["files"].items() if not k.startswith("train/")}
+        marker.write_text(json.dumps(rec))
+    make_clip(tmp_path / "full", seed=4, frames=2, width=48, height=40)
+    report = SkipReport()
+    sources = harness_sources(tmp_path, report)
+    deep = [s for s in sources if s.name.startswith("deep/")]
+    assert len(deep) == 3 and all(s.kinds == ("gt",) and not s.members for s in deep)
+    assert report.total == 0
+    data = TrainingSet(sources, Augment(crop=32, gt_share=0.75))
+    rng = np.random.default_rng(0)
+    kinds = [data.draw(rng).kind for _ in range(400)]
+    assert 0.68 < kinds.count("gt") / len(kinds) < 0.82
+    sample = next(s for s in (data.draw(rng) for _ in range(50)) if s.kind == "gt")
+    assert sample.gt_disparity is not None and sample.gt_exponent is not None and sample.adjusted is None
+    torch.manual_seed(0)
+    res = sample_loss(EstimatorNet(), sample, LossWeights(supervised=1.0))
+    assert np.isfinite(res.total.item()) and res.total.item() > 0
+    assert "rend" not in res.parts and "sup_d" in res.parts and "d_rms_px" in res.parts
+    with pytest.raises(InputError, match="--supervised-weight"):
+        sample_loss(EstimatorNet(), sample, LossWeights(supervised=0.0))

@@ -105,16 +105,19 @@ class ActionDetector(FocusDetector):
         inl = np.linalg.norm(np.einsum("nk,kc->nc", A, c) - y, axis=1) < self.ransac_px
         return solve(np.flatnonzero(inl)) if inl.sum() >= k else c
 
-    def residual(self, prev: np.ndarray, cur: np.ndarray, disparity: np.ndarray | None = None) -> np.ndarray:
-        """Independent-motion magnitude (h, w) float32, px/frame of these grey frames.
+    def camera_flow(self, prev: np.ndarray, cur: np.ndarray,
+                    disparity: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(flow, camera flow), each (h, w, 2) float32 px/frame of these grey frames: the dense
+        DIS flow from ``prev`` to ``cur`` (``prev(x) ~ cur(x + flow(x))``) and the part of it the
+        camera explains.
 
         disparity: (h, w) map of the current frame (any affine unit of inverse depth), or None.
         Camera motion model: a homography fitted with RANSAC to a grid of the DIS flow; with a
         disparity map, a plane + parallax model instead, per flow component
         ``[1, x, y, x^2, xy, y^2, D, D x, D y]`` (rotation = the quadratic terms of a
         homography; translation = parallax linear in inverse depth, which D is affine in),
-        fitted by RANSAC with ridge-regularised parallax terms. The residual is what the
-        model leaves.
+        fitted by RANSAC with ridge-regularised parallax terms. Without a usable model, the
+        median flow (a pure pan).
         """
         import cv2
 
@@ -122,25 +125,30 @@ class ActionDetector(FocusDetector):
         h, w = prev.shape
         s = self.grid_step
         ys, xs = np.mgrid[s // 2:h:s, s // 2:w:s]
-        src = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
-        fl = flow[ys.ravel(), xs.ravel()]
-        H, inl = cv2.findHomography(src, src + fl, cv2.RANSAC, self.ransac_px, maxIters=500)
         gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
+        fl = flow[ys.ravel(), xs.ravel()]
         if disparity is not None and np.isfinite(disparity).all() and float(disparity.std()) > 1e-6:
             dn = (disparity - float(disparity.mean())) / float(disparity.std())
             nx, ny = (gx - w / 2) / (w / 2), (gy - h / 2) / (w / 2)
             A = self._design(nx[ys, xs].ravel(), ny[ys, xs].ravel(), dn[ys, xs].ravel())
             coef = self._ransac_fit(A, fl)
-            model = np.einsum("hwk,kc->hwc", self._design(nx, ny, dn), coef)
-            return np.linalg.norm(flow - model, axis=2).astype(np.float32)
+            return flow, np.einsum("hwk,kc->hwc", self._design(nx, ny, dn), coef).astype(np.float32)
+        src = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
+        H, _ = cv2.findHomography(src, src + fl, cv2.RANSAC, self.ransac_px, maxIters=500)
         if H is None:
             self._homography_failures += 1
             cam = np.median(flow.reshape(-1, 2), axis=0)
-            return np.linalg.norm(flow - cam, axis=2).astype(np.float32)
+            return flow, np.broadcast_to(cam.astype(np.float32), flow.shape).copy()
         den = H[2, 0] * gx + H[2, 1] * gy + H[2, 2]
         px = (H[0, 0] * gx + H[0, 1] * gy + H[0, 2]) / den - gx
         py = (H[1, 0] * gx + H[1, 1] * gy + H[1, 2]) / den - gy
-        return np.hypot(flow[..., 0] - px, flow[..., 1] - py).astype(np.float32)
+        return flow, np.stack([px, py], axis=-1).astype(np.float32)
+
+    def residual(self, prev: np.ndarray, cur: np.ndarray, disparity: np.ndarray | None = None) -> np.ndarray:
+        """Independent-motion magnitude (h, w) float32, px/frame of these grey frames:
+        ``|flow - camera flow|`` (``camera_flow``)."""
+        flow, cam = self.camera_flow(prev, cur, disparity)
+        return np.hypot(flow[..., 0] - cam[..., 0], flow[..., 1] - cam[..., 1]).astype(np.float32)
 
     def process(self, t: int, frame: AnalysisFrame) -> None:
         import cv2

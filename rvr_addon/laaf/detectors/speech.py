@@ -14,10 +14,19 @@ mouth shows its dark inside). At frame t a face's score is the best Pearson corr
 the envelope, taken over a window of ``window_s``
 (centred on t in look-ahead mode, ending at t in causal mode) clipped to the current voiced
 segment (+-2 frames), so two turns are never mixed. The heat map is the speaking face's box
-(a lone face while someone speaks is taken as the speaker if it correlates at all). A speaker
-whose face the face detector misses is not found: a face-free localisation from the
-correlation of grid cells was tried and rejected, because on textured, moving backgrounds
-spurious cells correlate as well as a 30 px face's mouth. No audio track: ``available`` is
+(a lone face while someone speaks is taken as the speaker if it correlates at all).
+
+Frames without any face track (faces too small or stylised for the face detector, a head
+turned away): the speaker is localised without faces by audio-visual synchrony
+(``synchrony.SynchronyLocaliser``, Hershey & Movellan 2000): the block of the camera-motion
+compensated frame difference whose energy correlates best with the change of the audio
+envelope, over the same kind of window (widened by ``sync_margin`` frames of the silence
+around the turn, which shows that the block was still while nobody spoke); it must reach
+``sync_min_corr``. The heat map is then a square of ``sync_box_frac`` of the frame width
+around that block. A speaker whose mouth is hidden (behind a leaf, off screen) leaves no
+synchrony and is not found: the preset keeps its focus. (An earlier grid-correlation attempt
+failed on textured, moving backgrounds because it had no camera-motion compensation and
+correlated with the envelope rather than its change.) No audio track: ``available`` is
 False and the preset falls back.
 """
 from __future__ import annotations
@@ -31,6 +40,7 @@ from ..audio import AudioTrack, NoAudio, analyse_audio, decode_audio
 from ..nft import Box
 from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
 from .face import FaceDetector
+from .synchrony import SynchronyLocaliser
 
 log = logging.getLogger(__name__)
 
@@ -94,19 +104,28 @@ class SpeechDetector(FocusDetector):
     are scored (shared with H_face). causal: trailing window, no look-ahead.
     min_corr: correlation (of 3-frame moving averages) a face needs to be called the speaker;
     min_margin: by how much it must beat the next face.
+    sync: localise without faces by audio-visual synchrony on frames with no face track.
+    sync_min_corr: smoothed block correlation the synchrony peak must reach (0..1).
+    sync_margin: frames of silence around the voiced segment the synchrony window may use.
+    sync_box_frac: side of the speaker's square, as a fraction of the frame width.
     """
 
     name = "speech"
 
     def __init__(self, faces: FaceDetector, fps: float, n_frames: int, media=None, audio: AudioTrack | None = None,
-                 start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25, min_margin: float = 0.1) -> None:
+                 start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25, min_margin: float = 0.1,
+                 sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1) -> None:
         self.faces = faces
         self.fps = fps
         self.causal = causal
         self.min_corr = min_corr
         self.min_margin = min_margin
         self.radius = max(2, int(round(window_s * fps / 2)))
-        self.lookahead_frames = 0 if causal else self.radius
+        self.lookahead_frames = 0 if causal else self.radius + (max(0, int(sync_margin)) if sync else 0)
+        self.sync_min_corr = sync_min_corr
+        self.sync_margin = max(0, int(sync_margin))
+        self.sync_box_frac = sync_box_frac
+        self.synchrony = SynchronyLocaliser(keep_frames=8 * self.radius + 4 * self.sync_margin + 8) if sync else None
         self.audio = audio
         if self.audio is None:
             try:
@@ -126,6 +145,7 @@ class SpeechDetector(FocusDetector):
         self._decisions: dict[int, tuple[Box | None, float, str | None]] = {}
         self._seconds = 0.0
         self._speaker_frames = 0
+        self._sync_frames = 0
 
     # -- ingest -----------------------------------------------------------------------------
     def process(self, t: int, frame: AnalysisFrame) -> None:
@@ -143,6 +163,8 @@ class SpeechDetector(FocusDetector):
                 dark = _mean_in(cur.astype(np.float32), upper_box(box)) - _mean_in(cur.astype(np.float32), mouth_box(box))
                 if np.isfinite(m) and np.isfinite(dark):
                     self._mouth.setdefault(tid, {})[t] = (max(m, 0.0), dark)
+        if self.synchrony is not None:
+            self.synchrony.push(t, cur, frame.disparity)
         self._prev = cur
         self._last = t
         keep = 4 * self.radius + 4
@@ -152,7 +174,9 @@ class SpeechDetector(FocusDetector):
         self._seconds += time.perf_counter() - start
 
     # -- decide -----------------------------------------------------------------------------
-    def _window(self, t: int) -> tuple[int, int] | None:
+    def _window(self, t: int, margin: int = 2) -> tuple[int, int] | None:
+        """Frames (first, last) of the decision window of voiced frame t (module docstring),
+        clipped to its voiced segment +- ``margin`` frames; None if t is silent."""
         a = self.audio
         if a is None or t >= len(a.voiced) or not a.voiced[t]:
             return None
@@ -163,9 +187,9 @@ class SpeechDetector(FocusDetector):
         while e + 1 < len(a.voiced) and a.voiced[e + 1]:
             e += 1
         if self.causal:
-            lo, hi = max(t - 2 * self.radius, s - 2), t
+            lo, hi = max(t - 2 * self.radius, s - margin), t
         else:
-            lo, hi = max(t - self.radius, s - 2), min(t + self.radius, e + 2)
+            lo, hi = max(t - self.radius, s - margin), min(t + self.radius, e + margin)
         lo, hi = max(lo, 1), min(hi, self._last)
         return (lo, hi) if hi - lo + 1 >= 3 else None
 
@@ -179,7 +203,9 @@ class SpeechDetector(FocusDetector):
             lo, hi = win
             frames = list(range(lo, hi + 1))
             env = self.audio.envelope[frames].astype(np.float64)
-            faces = self.faces.faces_at(t)
+            faces = self.faces.faces_at(t) if self.faces is not None else []
+            if not faces and self.synchrony is not None:
+                result = self._decide_by_synchrony(t)
             scored = []
             for box, _, tid in faces:
                 series = self._mouth.get(tid, {})
@@ -205,6 +231,48 @@ class SpeechDetector(FocusDetector):
                 del self._decisions[k]
         return result
 
+    def _sync_window(self, t: int) -> tuple[int, int] | None:
+        """Frames (first, last) of the synchrony window of voiced frame t: its whole voiced
+        segment +- ``sync_margin`` frames of silence, at most 2 * radius + 1 + 2 * sync_margin
+        frames long (centred on t when longer); causal: ending at t. None if t is silent."""
+        seg = self._window(t, margin=0)
+        a = self.audio
+        if seg is None or a is None:
+            return None
+        s, e = t, t
+        while s > 0 and a.voiced[s - 1]:
+            s -= 1
+        while e + 1 < len(a.voiced) and a.voiced[e + 1]:
+            e += 1
+        lo, hi = s - self.sync_margin, e + self.sync_margin
+        cap = 2 * self.radius + 2 * self.sync_margin
+        if self.causal:
+            lo, hi = max(lo, t - cap), t
+        elif hi - lo > cap:
+            lo = min(max(lo, t - cap // 2), hi - cap)
+            hi = lo + cap
+        lo, hi = max(lo, 1), min(hi, self._last)
+        return (lo, hi) if hi - lo + 1 >= 6 else None
+
+    def _decide_by_synchrony(self, t: int) -> tuple[Box | None, float, str | None]:
+        """(square around the synchrony peak or None, peak correlation, None) for voiced t."""
+        win = self._sync_window(t)
+        if win is None:
+            return None, 0.0, None
+        frames = list(range(win[0], win[1] + 1))
+        env = self.audio.envelope.astype(np.float64)
+        feature = np.abs(env[frames] - env[[max(k - 1, 0) for k in frames]])
+        corr, _ = self.synchrony.correlate(frames, feature)
+        if corr is None:
+            return None, 0.0, None
+        value, x, y = self.synchrony.peak(corr)
+        if value < self.sync_min_corr:
+            return None, value, None
+        h, w = self.synchrony.shape
+        side = self.sync_box_frac * w
+        x0, y0 = min(max(x - side / 2, 0.0), max(w - side, 0.0)), min(max(y - side / 2, 0.0), max(h - side, 0.0))
+        return (x0, y0, min(side, w), min(side, h)), value, None
+
     def output(self, t: int) -> DetectorOutput:
         if not self.available:
             return DetectorOutput(None, available=False)
@@ -212,12 +280,14 @@ class SpeechDetector(FocusDetector):
         if box is None:
             return DetectorOutput(None)
         self._speaker_frames += 1
+        if tid is None:
+            self._sync_frames += 1
         boxes = [(box, 1.0, tid)]
         return DetectorOutput(boxes_heat(self._shape, boxes), boxes)
 
     def metrics(self) -> dict:
         m = {"available": self.available, "s_per_frame": self._seconds / max(self._last + 1, 1),
-             "speaker_frames": self._speaker_frames}
+             "speaker_frames": self._speaker_frames, "synchrony_frames": self._sync_frames}
         if self.audio is not None:
             m["voiced_frames"] = int(self.audio.voiced.sum())
             m["voiced_segments"] = [[int(a), int(b)] for a, b in self.audio.segments()]
