@@ -40,7 +40,8 @@ DEFAULT_MAX_PIXELS = 1920 * 1088
 """Frames with more pixels run the network on a copy shrunk to this many pixels; D is still
 sliced and E gated at full resolution."""
 NO_WEIGHTS_HELP = (
-    "no trained estimator weights are shipped with this version of rvr yet. Train them on "
+    "the estimator's weights file is missing (rvr ships a trained estimator.pt in "
+    "rvr_addon/estimate/weights/: restore it from the repository, see its MODEL.md). Or train your own on "
     "harness clips (`python -m sintel_eval generate ... -o DATA/clip1`, then "
     "`rvr train --data DATA -o RUN`) and pass `--weights RUN/estimator.pt`; or bring depth from "
     "elsewhere with `--depth MAPS` and `--no-hdr`."

@@ -1,6 +1,6 @@
 """rvr batch: chunk plans, staging caches, chunked == single-process output, a killed worker,
 bad input, re-runs, the missing-weights error. Clips are 64x36, 12 frames; the estimator
-weights are untrained (exported for the tests only; no weights are shipped as a model)."""
+weights are untrained (exported for the tests only; the shipped model is not used)."""
 from __future__ import annotations
 
 import json

@@ -18,7 +18,6 @@ from rvr_addon.estimate.evaluate import (
     EvalSettings, affine_invariant_error, affine_rms, evaluate, fit_scale_shift, log_radiance_sq_error, motorcycle,
     pearson, saturated_mask, vertical_ramp,
 )
-from rvr_addon.estimate.infer import SHIPPED_WEIGHTS
 from rvr_addon.estimate.train import export_weights
 from rvr_addon.estimate.unet import EstimatorConfig, EstimatorNet
 
@@ -112,11 +111,13 @@ def test_eval_report_with_a_random_tiny_network(tiny_weights, heldout, tmp_path)
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
-def test_eval_errors_name_the_weights_and_the_fix(tmp_path, heldout, capsys):
+def test_eval_errors_name_the_weights_and_the_fix(tmp_path, heldout, capsys, monkeypatch):
     with pytest.raises(InputError, match="missing_weights.pt"):
         evaluate(EvalSettings(output=tmp_path / "r", weights=tmp_path / "missing_weights.pt", data=[heldout]))
-    assert not SHIPPED_WEIGHTS.exists()
-    with pytest.raises(InputError, match="no trained estimator weights are shipped"):
+    from rvr_addon.estimate import infer
+
+    monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    with pytest.raises(InputError, match="weights file is missing"):
         evaluate(EvalSettings(output=tmp_path / "r", data=[heldout]))
     with pytest.raises(InputError, match="--data"):
         evaluate(EvalSettings(output=tmp_path / "r", weights=tmp_path / "x.pt"))
@@ -137,11 +138,14 @@ def test_cli_eval_estimator(tiny_weights, heldout, tmp_path, capsys):
 # ------------------------------------------------------------------------------ ablation rows
 
 
-def test_ablation_estimator_rows_unavailable_without_weights_and_run_with_them(tiny_weights, heldout, tmp_path):
+def test_ablation_estimator_rows_unavailable_without_weights_and_run_with_them(tiny_weights, heldout, tmp_path,
+                                                                               monkeypatch):
+    from rvr_addon.estimate import infer
     from sintel_eval import estimator_inputs
     from sintel_eval.ablate import run_ablation
     from sintel_eval.variants import select
 
+    monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
     estimator_inputs.configure(None)
     rows = select(["estimated_disparity", "estimated_hdr"])
     assert all("no trained estimator weights" in (v.unavailable() or "") for v in rows)

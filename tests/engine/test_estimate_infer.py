@@ -1,7 +1,7 @@
 """rvr estimate: the per-clip cache (resume, stale entries), external depth, bad input, weights errors.
 
 The weights here are an untrained network exported for the tests (the cache and the stream
-do not care what the network has learnt); no weights are shipped as a model.
+do not care what the network has learnt); the shipped model is not used here.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from rvr_addon.cli import main
 from rvr_addon.errors import InputError
 from rvr_addon.estimate.cache import ClipCache, frame_path
 from rvr_addon.estimate.infer import (
-    SHIPPED_WEIGHTS, EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, sample_window,
+    EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, sample_window,
 )
 from rvr_addon.estimate.train import export_weights
 from rvr_addon.estimate.unet import EstimatorNet
@@ -132,8 +132,12 @@ def test_weights_errors_name_the_file(tmp_path, clip):
     torch.save({"conv.weight": torch.zeros(1)}, other)
     with pytest.raises(InputError, match="state_dict.pt"):
         load_estimator(other)
-    assert not SHIPPED_WEIGHTS.exists()
-    with pytest.raises(InputError, match="no trained estimator weights are shipped"):
+
+def test_missing_shipped_weights_name_the_file_and_the_fix(tmp_path, clip, monkeypatch):
+    from rvr_addon.estimate import infer
+
+    monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    with pytest.raises(InputError, match="weights file is missing.*gone/estimator.pt"):
         EstimateJob(EstimateSettings(input=clip, output=tmp_path / "c"))
 
 
@@ -171,7 +175,7 @@ def test_external_depth_affine_points_and_distance(clip, tmp_path, weights):
     assert sample_window(np.arange(25.0).reshape(5, 5), 2.0, 2.0) == 12.0
 
 
-def test_cli_estimate_then_render_from_the_cache(clip, tmp_path, weights, capsys):
+def test_cli_estimate_then_render_from_the_cache(clip, tmp_path, weights, capsys, monkeypatch):
     cache = tmp_path / "cache"
     assert main(["estimate", str(clip), "-o", str(cache), "--weights", str(weights[0]), "-q"]) == 0
     out = tmp_path / "render"
@@ -179,9 +183,12 @@ def test_cli_estimate_then_render_from_the_cache(clip, tmp_path, weights, capsys
                  "-o", str(out), "-q"]) == 0
     assert len(list(out.glob("*.png"))) == 3
     capsys.readouterr()
+    from rvr_addon.estimate import infer
+
+    monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
     assert main(["estimate", str(clip), "-o", str(tmp_path / "c2"), "-q"]) == 2
     err = capsys.readouterr().err
-    assert "no trained estimator weights are shipped" in err and "rvr train" in err
+    assert "weights file is missing" in err and "rvr train" in err
 
 
 def test_clip_cache_rejects_a_file_path(tmp_path):
