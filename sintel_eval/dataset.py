@@ -31,7 +31,7 @@ from rvr_addon.pipeline import exponent_from_radiance
 
 from .camera_math import Lens, affine_between, affine_to_blur
 from .scene_plan import DEFAULT_TILT_DEG, FOCAL_MM, SENSOR_WIDTH_MM
-from .scripts_events import SCRIPTS, check_script
+from .scripts_events import SCRIPT_VERSIONS, SCRIPTS, check_script
 
 FORMAT = "rvr-laaf-harness/1"
 HARNESS_VERSION = 2  # bump when the scene generator changes what a seed renders (2: start_moving rule -> rack track)
@@ -172,6 +172,9 @@ class GenerateConfig:
         if config.get("dof", True):
             config.pop("dof", None)  # likewise for a clip with its DOF passes
         blob = {"config": config, "format": FORMAT, "harness": HARNESS_VERSION, "blender": blender_version}
+        script_version = SCRIPT_VERSIONS.get(self.script, 1)
+        if script_version > 1:  # only scripts changed since: the others keep their earlier hash
+            blob["script_version"] = script_version
         if not self.original_look:
             blob["look"] = {"style": self.style, "lighting": self.lighting, "version": LOOK_VERSION,
                             "textures": texture_digest}
@@ -352,9 +355,10 @@ def generate(out_dir: str | Path, config: GenerateConfig, force: bool = False, p
     built = build_scene(plan, cfg.width, cfg.height, texture_files=texture_files)
 
     apply_frame(built, plan, 1, mouth)
-    probe = Lens(FOCAL_MM, SENSOR_WIDTH_MM, cfg.width, cfg.f_number_ref, 1.0)
+    focal_mm = getattr(plan.camera, "focal_mm", FOCAL_MM)  # the conversation script's lens is longer
+    probe = Lens(focal_mm, SENSOR_WIDTH_MM, cfg.width, cfg.f_number_ref, 1.0)
     s_ref = subject_frame(built, plan.main, probe, cfg.width, cfg.height).depth_m
-    lens = Lens(FOCAL_MM, SENSOR_WIDTH_MM, cfg.width, cfg.f_number_ref, s_ref)
+    lens = Lens(focal_mm, SENSOR_WIDTH_MM, cfg.width, cfg.f_number_ref, s_ref)
     records = {c.name: [] for c in plan.characters}
     cameras = []
     for k in range(1, cfg.frames + 1):
@@ -654,6 +658,7 @@ def _manifest(cfg: GenerateConfig, chash: str, plan, lens: Lens, built, records:
     return {
         "format": FORMAT,
         "harness_version": HARNESS_VERSION,
+        "script_version": SCRIPT_VERSIONS.get(cfg.script, 1),
         "config": cfg.to_dict(),
         "config_hash": chash,
         "frames": cfg.frames, "width": cfg.width, "height": cfg.height, "fps": cfg.fps,

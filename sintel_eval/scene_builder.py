@@ -22,6 +22,8 @@ import numpy as np
 from . import materials as mat
 from .bpy_util import bpy, box, cylinder, empty, quad, rod, sphere
 from .camera_math import Lens, box_of, project_points
+from .framing import (PLANT_LEAF_SIZE, PLANT_LEAF_SPREAD, PLANT_TIP_DX, PLANT_TIP_DY, PLANT_TIP_Z, STRAND_JITTER_M,
+                      STRAND_TOP_Z)
 from .scene_plan import BULB_RADIANCE, BULB_RADIUS_M, FOCAL_MM, SENSOR_WIDTH_MM, Character, ScenePlan, half_width
 from .scripts_events import SubjectFrame
 
@@ -71,7 +73,7 @@ def build_scene(plan: ScenePlan, width: int, height: int, texture_files: dict | 
     cam_data = bpy.data.cameras.new("camera")
     cam_data.type = "PERSP"
     cam_data.lens_unit = "MILLIMETERS"
-    cam_data.lens = FOCAL_MM
+    cam_data.lens = getattr(plan.camera, "focal_mm", FOCAL_MM)
     cam_data.sensor_fit = "HORIZONTAL"
     cam_data.sensor_width = SENSOR_WIDTH_MM
     cam_data.sensor_height = SENSOR_WIDTH_MM * height / width
@@ -244,7 +246,8 @@ def _build_set(plan: ScenePlan, rng: np.random.Generator, ids: dict, emitters: l
 
     for k, (x, y, zb, r) in enumerate(sp.strands):
         color = tuple(float(c) for c in rng.uniform(0.05, 0.9, 3))
-        o = rod(f"strand_{k}", (x, y, 4.0), (x + float(rng.uniform(-0.05, 0.05)), y, zb), r,
+        x_bottom = x + float(rng.uniform(-STRAND_JITTER_M, STRAND_JITTER_M))
+        o = rod(f"strand_{k}", (x, y, STRAND_TOP_Z), (x_bottom, y, zb), r,
                 mat.flat(f"strand_{k}_mat", color, roughness=0.4), 6)
         o.pass_index = STRANDS_ID
     ids[STRANDS_ID] = "strands"
@@ -295,10 +298,12 @@ def _plant(name: str, x: float, y: float, rng: np.random.Generator) -> list:
     foliage = mat.leaf(f"{name}_leaf", rng.uniform(0, 10, 3))
     objs, tips = [], []
     for k in range(int(rng.integers(3, 6))):
-        tip = (x + float(rng.uniform(-0.15, 0.15)), y + float(rng.uniform(-0.1, 0.1)), float(rng.uniform(1.3, 1.75)))
+        tip = (x + float(rng.uniform(-PLANT_TIP_DX, PLANT_TIP_DX)), y + float(rng.uniform(-PLANT_TIP_DY, PLANT_TIP_DY)),
+               float(rng.uniform(*PLANT_TIP_Z)))
         objs.append(rod(f"{name}_stem_{k}", (x, y, 0.0), tip, 0.006, stem_mat, 6))
         tips.append(tip)
-    objs.append(_leaves(f"{name}_leaves", tips, int(rng.integers(30, 50)), 0.18, (0.05, 0.1), foliage, rng))
+    objs.append(_leaves(f"{name}_leaves", tips, int(rng.integers(30, 50)), PLANT_LEAF_SPREAD, PLANT_LEAF_SIZE, foliage,
+                        rng))
     return objs
 
 

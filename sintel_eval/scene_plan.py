@@ -33,7 +33,8 @@ HAIRS = ((0.03, 0.02, 0.01), (0.25, 0.13, 0.05), (0.55, 0.42, 0.20), (0.12, 0.12
 
 @dataclass
 class CameraPath:
-    """Pan (yaw about +Z, rad) and dolly (m along the frame-1 view axis) over the clip."""
+    """Pan (yaw about +Z, rad) and dolly (m along the frame-1 view axis) over the clip; focal_mm:
+    the lens (mm on the SENSOR_WIDTH_MM sensor; the conversation script uses a longer one)."""
 
     start: tuple[float, float, float]
     yaw_start: float
@@ -41,6 +42,25 @@ class CameraPath:
     dolly_m: float
     tilt: float
     frames: int
+    focal_mm: float = FOCAL_MM
+
+    @property
+    def half_fov_tan(self) -> float:
+        """Half the frame width over the depth (tan of the half horizontal field of view)."""
+        return SENSOR_WIDTH_MM / 2.0 / self.focal_mm
+
+    def world_to_camera(self, frame: int) -> np.ndarray:
+        """(4, 4) world -> camera matrix on ``frame`` (Blender camera: looks along its -Z), the
+        inverse of the matrix_world that scene_builder gives the camera object."""
+        (x, y, z), (rx, _, rz) = self.pose(frame)
+        cx, sx, cz, sz = math.cos(rx), math.sin(rx), math.cos(rz), math.sin(rz)
+        rot_x = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+        rot_z = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+        rot = rot_z @ rot_x  # Euler XYZ (Y = 0)
+        out = np.eye(4)
+        out[:3, :3] = rot.T
+        out[:3, 3] = -rot.T @ np.array([x, y, z])
+        return out
 
     def pose(self, frame: int) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
         """(location m, Euler XYZ rad) of the camera on ``frame``."""
@@ -198,7 +218,7 @@ def edge_x(camera: CameraPath, frame: int, y: float, side: float) -> float:
     """World x where the floor line at world ``y`` meets the left (side -1) or right (+1) image
     edge on ``frame`` (exact for the posed camera: pan and dolly included)."""
     (cx, cy, _), (_, _, yaw) = camera.pose(frame)
-    t = HALF_FOV_TAN
+    t = camera.half_fov_tan
     dy = y - cy
     return cx + dy * (side * t * math.cos(yaw) - math.sin(yaw)) / (math.cos(yaw) + side * t * math.sin(yaw))
 

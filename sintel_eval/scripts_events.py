@@ -16,6 +16,7 @@ import numpy as np
 from rvr_addon.errors import InputError
 
 from .camera_math import Lens, smoothstep
+from .framing import clear_speakers
 from .scene_plan import (DEFAULT_TILT_DEG, NAMES, WALK_M_PER_FRAME, CameraPath, Character, Motion, Mover, ScenePlan, edge_x,
                          half_width, make_camera, make_set, new_character)
 
@@ -24,6 +25,19 @@ START_VISIBLE = 0.2  # a started movement counts when the face and this share of
 # (standing figures at 4-6 m are cut at the knees by the 16:9 frame: ~45% of their box is in view)
 FACE_LEAD = 0.1  # m: the focus point (face) leads a walking body's root by this much
 HFOV = math.atan(half_width(1.0))
+# The conversation script frames its speakers' faces like a two-shot: a longer lens, speakers
+# nearer (heads >= ~38 px tall at 320 px wide), a gentler pan and push-in, and no strand or
+# plant in front of a speaker's head and upper body (sintel_eval.framing). Each script has a
+# version in the config hash when it is above 1 (dataset.GenerateConfig.config_hash), so an old
+# conversation clip is not resumed with the new scene while the other scripts keep their hash.
+SCRIPT_VERSIONS = {"conversation": 2}  # 2: close framing, 85 mm, speakers clear of foreground structures
+CONVERSATION_FOCAL_MM = 85.0
+CONVERSATION_NEAR_M = (2.8, 3.1)  # the first speaker's depth
+CONVERSATION_GAP_M = (1.1, 1.4)  # the second speaker stands this much further back
+CONVERSATION_PAN, CONVERSATION_DOLLY = 0.3, 0.3  # of the drawn pan and dolly
+# Image angles of the speakers' marks (fractions of the half field of view): first speaker on
+# side A, second on side B, the third (if any) near the centre on side B, between them in depth.
+CONVERSATION_X = {2: ((0.25, 0.4), (0.35, 0.5), None), 3: ((0.55, 0.65), (0.55, 0.65), (0.0, 0.1))}
 
 
 def _x_at(angle: float, depth: float, camera: CameraPath) -> float:
@@ -57,7 +71,8 @@ def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int 
     side_a = -1.0 if camera.yaw_end > camera.yaw_start else 1.0  # the pan brings A towards the centre
     side_b = -side_a
     y_a = float(rng.uniform(2.8, 3.4))
-    x_a = _x_at(side_a * float(rng.uniform(0.2, 0.4)) * HFOV, y_a, camera)
+    u_a = float(rng.uniform(0.2, 0.4))
+    x_a = _x_at(side_a * u_a * HFOV, y_a, camera)
     chars: list[Character] = []
     a = new_character(rng, names[0], 1, Motion("stand", (x_a, y_a), (x_a, y_a)), role="main")
     chars.append(a)
@@ -96,18 +111,9 @@ def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int 
         chars.append(start_walk(names[1], 2, float(rng.uniform(4.2, 5.4)), side_b, t_event))
     elif script == "conversation":
         n = speakers_hint or (3 if frames / fps >= 4.0 and rng.uniform() < 0.5 else 2)
-        a.speaker = True
-        a.facing = side_b * math.radians(float(rng.uniform(25.0, 40.0)))
-        y_b = float(rng.uniform(4.0, 5.0))
-        x_b = _x_at(side_b * float(rng.uniform(0.25, 0.45)) * HFOV, y_b, camera)
-        chars.append(new_character(rng, names[1], 2, Motion("stand", (x_b, y_b), (x_b, y_b)),
-                                   facing=side_a * math.radians(float(rng.uniform(25.0, 40.0))), role="second",
-                                   speaker=True))
-        if n >= 3:
-            y_c = float(rng.uniform(5.5, 6.5))
-            x_c = _x_at(float(rng.uniform(-0.1, 0.1)) * HFOV, y_c, camera)
-            chars.append(new_character(rng, names[2], 3, Motion("stand", (x_c, y_c), (x_c, y_c)), role="extra",
-                                       speaker=True))
+        _conversation(rng, camera, chars, names, n, side_a, (y_a - 2.8) / 0.6, (u_a - 0.2) / 0.2)
+        set_plan, cleared = clear_speakers(set_plan, camera, [c for c in chars if c.speaker], frames)
+        notes["cleared_for_speakers"] = cleared
     else:  # random
         kind = str(rng.choice(["enter", "start-moving", "cross"]))
         y_b = float(rng.uniform(4.2, 5.5))
@@ -137,6 +143,40 @@ def make_plan(seed: int, script: str, frames: int, fps: int, speakers_hint: int 
         plan.look = make_look(plan, style, lighting, library, SCRIPTS.index(script))
     return plan
 
+
+
+def _lerp(lo_hi: tuple[float, float], t: float) -> float:
+    return lo_hi[0] + (lo_hi[1] - lo_hi[0]) * t
+
+
+def _conversation(rng: np.random.Generator, camera: CameraPath, chars: list[Character], names: list, n: int,
+                  side_a: float, t_depth: float, t_angle: float) -> None:
+    """Frame a conversation of ``n`` speakers: sets the camera's lens, pan and dolly, moves the
+    first speaker (``chars[0]``; t_depth, t_angle in [0, 1]: its seeded place within the ranges)
+    and appends the others. The speakers stand at distinct depths (nearest first)."""
+    side_b = -side_a
+    camera.focal_mm = CONVERSATION_FOCAL_MM
+    camera.yaw_end = camera.yaw_start + CONVERSATION_PAN * (camera.yaw_end - camera.yaw_start)
+    camera.dolly_m *= CONVERSATION_DOLLY
+    hfov = math.atan(camera.half_fov_tan)
+    x_range_a, x_range_b, x_range_c = CONVERSATION_X[min(max(n, 2), 3)]
+    a = chars[0]
+    y_a = _lerp(CONVERSATION_NEAR_M, t_depth)
+    x_a = _x_at(side_a * _lerp(x_range_a, t_angle) * hfov, y_a, camera)
+    a.motion = Motion("stand", (x_a, y_a), (x_a, y_a))
+    a.speaker = True
+    a.facing = side_b * math.radians(float(rng.uniform(25.0, 40.0)))
+    y_b = y_a + float(rng.uniform(*CONVERSATION_GAP_M))
+    x_b = _x_at(side_b * float(rng.uniform(*x_range_b)) * hfov, y_b, camera)
+    chars.append(new_character(rng, names[1], 2, Motion("stand", (x_b, y_b), (x_b, y_b)),
+                               facing=side_a * math.radians(float(rng.uniform(25.0, 40.0))), role="second",
+                               speaker=True))
+    if n >= 3:  # between the two in disparity, near the centre
+        w = float(rng.uniform(0.4, 0.6))
+        y_c = 1.0 / ((1.0 - w) / y_a + w / y_b)
+        x_c = _x_at(side_b * float(rng.uniform(*x_range_c)) * hfov, y_c, camera)
+        chars.append(new_character(rng, names[2], 3, Motion("stand", (x_c, y_c), (x_c, y_c)), role="extra",
+                                   speaker=True))
 
 
 def _ball(rng: np.random.Generator, camera: CameraPath, frames: int, name: str = "ball", index: int = 11) -> Mover:

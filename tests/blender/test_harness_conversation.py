@@ -74,3 +74,17 @@ def test_speech_events_point_at_the_speaker(talk):
         assert e["detail"]["text"]
     rack = manifest["focus_tracks"]["rack"]
     assert (rack["from"], rack["to"]) == (turns[0]["speaker"], turns[1]["speaker"])
+
+
+def test_conversation_lens_and_camera_match_the_plan(talk):
+    """The conversation's longer lens reaches Blender, and the bpy-free camera model that keeps
+    strands and plants off the speakers (sintel_eval.framing) is Blender's camera."""
+    from sintel_eval.scripts_events import CONVERSATION_FOCAL_MM, SCRIPT_VERSIONS, make_plan
+
+    out, manifest = talk
+    assert manifest["camera"]["focal_mm"] == CONVERSATION_FOCAL_MM
+    assert manifest["script_version"] == SCRIPT_VERSIONS["conversation"]
+    plan = make_plan(4, "conversation", FRAMES, 24)
+    for cam in manifest["camera_per_frame"]:
+        np.testing.assert_allclose(plan.camera.world_to_camera(cam["frame"]), np.array(cam["world_to_camera"]),
+                                   atol=1e-5)
