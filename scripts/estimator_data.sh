@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The RGBD-HDR estimator's training data (issue 4), as used for the shipped weights
+# (rvr_addon/estimate/weights/MODEL.md). Every clip is resumable: run the script again after an
+# interruption. Seeds never overlap the held-out evaluation clips (1001-1005).
+#
+#   scripts/estimator_data.sh [DATA_DIR] [N_DEEP]
+#
+# DATA_DIR/train  clips WITH training passes (Cycles shallow-DOF pairs, aperture and focal
+#                 triplets on every frame): photo style, 8 frames each. Seeds 3001-3004 with the
+#                 default camera tilt, 3101.. tilted down (the floor recedes, as in much real
+#                 footage). ~3-7 min a clip on this 2-core machine.
+# DATA_DIR/deep   ground-truth-only clips (--no-dof: the deep pass with exact disparity and HDR,
+#                 no DOF passes; `rvr train` uses them for its supervised terms, kind "gt"):
+#                 photo style, 6 frames each, seeds 4001.. (even seeds tilted down). ~40 s a clip.
+#
+# Then, e.g.:
+#   rvr train --data DATA_DIR/deep --data DATA_DIR/train -o RUN --gt-share 0.75 --crop 160 \
+#             --inference-max-pixels 57600 --threads 1 --iterations 20000
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PY:-.venv/bin/python}
+DATA=${1:-out/estimator_data}
+N_DEEP=${2:-600}
+N_TRAIN=${N_TRAIN:-40}
+
+gen() {  # gen OUT ARGS...: one clip, skipped when complete
+  local out=$1; shift
+  [[ -f "$out/.complete" ]] && return 0
+  if nice -n 10 "$PY" -m sintel_eval generate --script random --size 320x180 --style photo -q -o "$out" "$@"; then
+    touch "$out/.complete"
+  else
+    echo "clip $out failed; re-run to resume it" >&2
+  fi
+}
+
+for seed in 3001 3002 3003 3004; do
+  gen "$DATA/train/clip_$seed" --seed "$seed" --frames 8 --train-every 1
+done
+for ((i = 0; i < N_TRAIN; i++)); do
+  seed=$((3101 + i))
+  gen "$DATA/train/clip_$seed" --seed "$seed" --frames 8 --train-every 1 --tilt=-14,1
+done
+for ((i = 0; i < N_DEEP; i++)); do
+  seed=$((4001 + i))
+  if ((seed % 2 == 0)); then tilt=(--tilt=-16,0); else tilt=(); fi
+  gen "$DATA/deep/clip_$seed" --seed "$seed" --frames 6 --no-dof "${tilt[@]}"
+done
