@@ -5,8 +5,10 @@
 Times :class:`rvr_addon.estimate.infer.Estimator` on a real picture (a Sintel frame from
 ../shared/data, resized; random texture if it is missing): uint8 frame in, D and E as numpy
 arrays out, everything in between included (conversion, padding, U-Net, bilateral slicing,
-E gating). The network is freshly initialised with a fixed seed: its speed does not depend on
-the values of its weights, and no trained weights exist yet. ``s_per_frame`` is the median
+E gating). It uses the shipped weights (rvr_addon/estimate/weights/estimator.pt) and so the
+trunk size they ask for (``inference_max_pixels``: frames above it run the network on a shrunk
+copy, D sliced and E gated at full size), or ``--weights W``; without any, a freshly initialised
+network at full size (speed does not depend on the weights' values). ``s_per_frame`` is the median
 of the repeats (the machine is shared: the minimum is reported too). Unless ``--no-job``, it
 also times ``rvr estimate`` end to end at 360p (PNG decode + inference + EXR write to the
 cache) over 8 frames. The last line of stdout is the JSON of DESIGN.md's keys.
@@ -59,22 +61,27 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--no-job", action="store_true", help="skip the end-to-end rvr estimate timing")
+    parser.add_argument("--weights", type=Path, help="estimator weights (default: the shipped ones)")
     args = parser.parse_args()
 
     import torch
 
-    from rvr_addon.estimate.infer import EstimateJob, EstimateSettings, Estimator, load_estimator
+    from rvr_addon.estimate.infer import SHIPPED_WEIGHTS, EstimateJob, EstimateSettings, Estimator, load_estimator
     from rvr_addon.estimate.train import export_weights
     from rvr_addon.estimate.unet import EstimatorNet
 
     result: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        torch.manual_seed(0)
-        net = EstimatorNet()
-        weights = export_weights(net, Path(tmp) / "untrained.pt", iterations=0, wall_time_s=0.0,
-                                 training={"note": "benchmark only: untrained"})
+        weights = args.weights or (SHIPPED_WEIGHTS if SHIPPED_WEIGHTS.is_file() else None)
+        if weights is None:
+            torch.manual_seed(0)
+            weights = export_weights(EstimatorNet(), Path(tmp) / "untrained.pt", iterations=0, wall_time_s=0.0,
+                                     training={"note": "benchmark only: untrained"})
         model = load_estimator(weights)
+        net = model.net
         est = Estimator(model)
+        print(f"weights {weights}: trunk at most {est.max_pixels} px", file=sys.stderr)
+        result["estimate.trunk_max_pixels"] = float(est.max_pixels)
         result["estimate.model.parameters"] = float(net.parameter_count())
         result["estimate.model.weights_mb"] = round(weights.stat().st_size / 1e6, 2)
         result["estimate.threads"] = float(torch.get_num_threads())
