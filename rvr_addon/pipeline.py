@@ -17,6 +17,7 @@ import numpy as np
 from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
 from .errors import InputError
 from .io.maps import open_map_sequence
+from .io.paths import replace_folder
 from .io.track import FocusTrack, constant_track, load_track, resolve_track
 from .io.video import ClipInfo, iter_frames, probe_clip
 from .io.writer import ImageSequenceWriter, VideoWriter
@@ -98,10 +99,7 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
             radiance = np.dstack([ch["R"], ch["G"], ch["B"]])
             srgb = cv2.cvtColor(cv2.imread(str(png), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
             np.save(tmp / (png.stem + ".npy"), exponent_from_radiance(srgb, radiance))
-        if out.exists():
-            _replace_dir(tmp, out)
-        else:
-            tmp.replace(out)
+        replace_folder(tmp, out)
     track = directory / "focus_track.json"
     if not track.is_file():
         near, far = float(meta["subject_disparity"]), float(meta["background_disparity"])
@@ -111,15 +109,6 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
                 (2 * hold + 2 * pull, near), (n - 1, near)]
         track.write_text(json.dumps({"keys": [{"frame": min(f, n - 1), "focus": v, "aperture": 1.0}
                                               for f, v in keys]}, indent=1))
-
-
-def _replace_dir(new: Path, old: Path) -> None:
-    import shutil
-
-    aside = old.with_name(old.name + ".old")
-    old.replace(aside)
-    new.replace(old)
-    shutil.rmtree(aside, ignore_errors=True)
 
 
 IMAGE_SUFFIXES = (".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff")

@@ -33,7 +33,7 @@ import numpy as np
 
 from rvr_addon.color import to_uint8
 from rvr_addon.errors import InputError, OutputError
-from rvr_addon.io.paths import temp_sibling
+from rvr_addon.io.paths import replace_folder, temp_sibling
 
 from .cli_args import positive_int
 from .metrics import display_srgb
@@ -94,16 +94,6 @@ def check_report_target(report: Path, force: bool) -> None:
     if any(report.iterdir()) and not (report / "summary.json").is_file():
         raise OutputError(f"Refusing to replace '{report}' with --force: it is not empty and holds no summary.json, "
                           "so it is not an ablation report. Choose another -o folder.")
-
-
-def _move_into_place(tmp: Path, report: Path) -> None:
-    if report.exists():
-        aside = temp_sibling(report, ".old")
-        report.replace(aside)
-        tmp.replace(report)
-        shutil.rmtree(aside, ignore_errors=True)
-    else:
-        tmp.replace(report)
 
 
 # ----------------------------------------------------------------------------------------
@@ -225,7 +215,7 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
         ab.seconds = time.perf_counter() - t_start
         write_report(ab, tmp, compare_frames=compare_frames, progress=progress)
         shutil.rmtree(tmp / "_frames", ignore_errors=True)
-        _move_into_place(tmp, report)
+        replace_folder(tmp, report)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -66,6 +66,24 @@ def cylinder(name, radius, z0, z1, xy, material, segments=24, parent=None):
     return link_object(name, bm, (xy[0], xy[1], 0.5 * (z0 + z1)), smooth=True, material=material, parent=parent)
 
 
+def hair_strands(name: str, count: int, rng, length_range: tuple[float, float], material, parent=None) -> list:
+    """``count`` thin hair strands from the crown (z 1.73 m) of a figure: most hang down the back
+    (``length_range`` m long), every fourth flies off a side. Draws from ``rng`` in a fixed order."""
+    strands = []
+    for k in range(count):
+        sx, sy = float(rng.uniform(-0.07, 0.07)), float(rng.uniform(0.0, 0.07))
+        start = (sx, sy, 1.73)
+        if k % 4 == 0:
+            side = 1.0 if sx >= 0 else -1.0
+            end = (sx + side * float(rng.uniform(0.1, 0.16)), sy + 0.02, 1.73 + float(rng.uniform(-0.08, 0.06)))
+        else:
+            end = (sx * 1.6 + float(rng.uniform(-0.04, 0.04)), sy + float(rng.uniform(0.04, 0.09)),
+                   1.73 - float(rng.uniform(*length_range)))
+        strands.append(rod(f"{name}_strand_{k}", start, end, float(rng.uniform(0.0012, 0.002)), material, 5,
+                           parent=parent))
+    return strands
+
+
 def rod(name, p0, p1, radius, material, segments=8, parent=None):
     """Capped cylinder of ``radius`` (m) from point p0 to p1 (any direction): strands, rails, twigs."""
     from mathutils import Vector

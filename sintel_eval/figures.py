@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from . import materials as mat
-from .bpy_util import bmesh, empty, link_object, rod
+from .bpy_util import bmesh, empty, hair_strands, link_object, rod
 from .look import FigureLook
 
 HIP_Z = 0.9
@@ -137,16 +137,7 @@ def build_person(c, fl: FigureLook, rng: np.random.Generator, cloth) -> dict:
     elif fl.hairstyle == "bob":
         parts.append(ellipsoid(f"{n}_bob", (0.108, 0.1, 0.085), (0.0, 0.028, 1.61), hair_m, 24, parent=root))
     strand_len = {"short": (0.08, 0.16), "bun": (0.08, 0.16), "bob": (0.14, 0.22), "long": (0.3, 0.45)}[fl.hairstyle]
-    for k in range(c.hair_strands):  # thin strands: down the back, a few flying off the sides
-        sx, sy = float(rng.uniform(-0.07, 0.07)), float(rng.uniform(0.0, 0.07))
-        start = (sx, sy, 1.73)
-        if k % 4 == 0:
-            side = 1.0 if sx >= 0 else -1.0
-            end = (sx + side * float(rng.uniform(0.1, 0.16)), sy + 0.02, 1.73 + float(rng.uniform(-0.08, 0.06)))
-        else:
-            end = (sx * 1.6 + float(rng.uniform(-0.04, 0.04)), sy + float(rng.uniform(0.04, 0.09)),
-                   1.73 - float(rng.uniform(*strand_len)))
-        parts.append(rod(f"{n}_strand_{k}", start, end, float(rng.uniform(0.0012, 0.002)), hair_m, 5, parent=root))
+    parts += hair_strands(n, c.hair_strands, rng, strand_len, hair_m, parent=root)
     focus = empty(f"{n}_focus", (0.0, -0.1, 1.665), parent=root)  # between the eyes, on the face
     for p in parts:
         p.pass_index = c.index

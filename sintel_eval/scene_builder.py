@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import materials as mat
-from .bpy_util import bpy, box, cylinder, empty, quad, rod, sphere
+from .bpy_util import bpy, box, cylinder, empty, hair_strands, quad, rod, sphere
 from .camera_math import Lens, box_of, project_points
 from .framing import (PLANT_LEAF_SIZE, PLANT_LEAF_SPREAD, PLANT_TIP_DX, PLANT_TIP_DY, PLANT_TIP_Z, STRAND_JITTER_M,
                       STRAND_TOP_Z)
@@ -355,16 +355,7 @@ def _build_character(c: Character, rng: np.random.Generator) -> CharacterRig:
     parts.append(cylinder(f"{n}_neck", 0.045, 1.42, 1.56, (0.0, 0.0), skin_m, 16, parent=root))
     parts.append(sphere(f"{n}_head", 0.1, (0.0, 0.0, 1.64), skin_m, 40, scale=(0.9, 1.0, 1.15), parent=root))
     parts.append(sphere(f"{n}_hair", 0.106, (0.0, 0.022, 1.67), hair_m, 40, scale=(0.93, 0.95, 1.12), parent=root))
-    for k in range(c.hair_strands):  # thin strands hanging down the back and flying off the sides
-        sx, sy = float(rng.uniform(-0.07, 0.07)), float(rng.uniform(0.0, 0.07))
-        start = (sx, sy, 1.73)
-        if k % 4 == 0:
-            side = 1.0 if sx >= 0 else -1.0
-            end = (sx + side * float(rng.uniform(0.1, 0.16)), sy + 0.02, 1.73 + float(rng.uniform(-0.08, 0.06)))
-        else:
-            end = (sx * 1.6 + float(rng.uniform(-0.04, 0.04)), sy + float(rng.uniform(0.04, 0.09)),
-                   1.73 - float(rng.uniform(0.18, 0.32)))
-        parts.append(rod(f"{n}_strand_{k}", start, end, float(rng.uniform(0.0012, 0.002)), hair_m, 5, parent=root))
+    parts += hair_strands(n, c.hair_strands, rng, (0.18, 0.32), hair_m, parent=root)
     for side in (-1.0, 1.0):
         parts.append(sphere(f"{n}_eye_{'lr'[side > 0]}", 0.011, (side * 0.03, -0.09, 1.665), eye_m, 12, parent=root))
     parts.append(sphere(f"{n}_nose", 0.014, (0.0, -0.1, 1.63), skin_m, 12, parent=root))

@@ -54,7 +54,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from ..io.paths import temp_sibling
+from ..io.paths import replace_folder, temp_sibling
 
 log = logging.getLogger(__name__)
 
@@ -389,13 +389,7 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
             comparison_image(left, disp, d, tmp / "compare_motorcycle.png", show_raw=False)
         summary["estimate.eval_s"] = time.perf_counter() - t_start
         _write_report(tmp, summary, rows, skipped, model, s)
-        if report.exists():
-            aside = temp_sibling(report, ".old")
-            report.replace(aside)
-            tmp.replace(report)
-            shutil.rmtree(aside, ignore_errors=True)
-        else:
-            tmp.replace(report)
+        replace_folder(tmp, report)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

@@ -102,3 +102,17 @@ def temp_sibling(path: Path, suffix: str = ".tmp") -> Path:
     the final file private to the user after the rename).
     """
     return path.parent / f".{path.name}.{secrets.token_hex(4)}{suffix}"
+
+
+def replace_folder(new: Path, target: Path) -> None:
+    """Put the finished folder ``new`` at ``target``: an existing ``target`` is moved aside first
+    and deleted only after the rename (a crash leaves the old or the new folder, never neither)."""
+    import shutil
+
+    if target.exists():
+        aside = temp_sibling(target, ".old")
+        target.replace(aside)
+        new.replace(target)
+        shutil.rmtree(aside, ignore_errors=True)
+    else:
+        new.replace(target)
