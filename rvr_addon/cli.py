@@ -205,6 +205,13 @@ def add_train_parser(sub) -> None:
                         "default: full size")
     p.add_argument("--vgg19", type=Path, metavar="PATH",
                    help="local VGG-19 state dict (torchvision layout) for the paper's perceptual loss")
+    p.add_argument("--init-from", type=Path, metavar="WEIGHTS",
+                   help="start a new run from these estimator weights (estimator.pt or a checkpoint.pt) instead "
+                        "of a random init; their architecture is kept")
+    p.add_argument("--row-prior", action="store_true",
+                   help="give the disparity head the row coordinate (lets the network learn that the floor is "
+                        "nearer toward the bottom of the frame); with --init-from it is added, zero-initialised, "
+                        "to weights without it")
     p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
     sup = LossWeights()
     p.add_argument("--supervised-weight", type=float, default=sup.supervised, metavar="W",
@@ -231,6 +238,7 @@ def add_train_parser(sub) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     from .estimate.losses import LossWeights
     from .estimate.train import Trainer, TrainSettings
+    from .estimate.unet import EstimatorConfig
 
     if not 0 < args.min_scale <= 1:
         raise RvrError(f"--min-scale must be in (0, 1], got {args.min_scale}")
@@ -246,7 +254,10 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
         whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
-        inference_max_pixels=args.inference_max_pixels)
+        inference_max_pixels=args.inference_max_pixels, init_from=args.init_from,
+        model=EstimatorConfig(row_prior=args.row_prior))
+    if args.resume and args.init_from is not None:
+        raise RvrError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
     run_training("train", trainer, args.output, args.quiet)

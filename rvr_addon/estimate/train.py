@@ -32,7 +32,8 @@ from __future__ import annotations
 import csv
 import json
 import time
-from dataclasses import asdict, dataclass, field
+import logging
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -49,10 +50,11 @@ from .data import Augment, SkipReport, TrainingSet, TrainSample, harness_sources
 from .losses import (
     LossResult, LossWeights, VGG19Features, load_vgg19, render_member, supervised_loss, to_display, total_loss,
 )
-from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, disparity_to_px
+from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, disparity_to_px, grow_state_dict
 
 CHECKPOINT_FORMAT = "rvr-laaf-estimator-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-estimator/1"
+log = logging.getLogger(__name__)
 LOG_FIELDS = ("iteration", "wall_s", "total", "rend", "adjust", "smooth", "pix", "ssim", "grad", "vgg", "grad_norm",
               "kind", "sample", "sup", "sup_d", "sup_dgrad", "sup_e", "sup_e0", "d_rms_px", "d_corr", "rss_mb")
 """Columns of loss_log.csv. ``sup*``: the supervised terms (blank for samples without ground
@@ -88,6 +90,9 @@ class TrainSettings:
     photo_max_side: int = 1024
     align_motion: str = "homography"
     model: EstimatorConfig = field(default_factory=EstimatorConfig)
+    init_from: Path | None = None
+    """A new run starts from these weights (estimator.pt or a checkpoint) instead of a random init;
+    its architecture is theirs, with ``model.row_prior`` switched on if asked (zero-initialised)."""
 
 
 def sample_loss(model: EstimatorNet, sample: TrainSample, weights: LossWeights,
@@ -204,9 +209,21 @@ class Trainer(TrainingRun):
         self.vgg = load_vgg19(s.vgg19) if s.vgg19 is not None else None
         model_cfg = s.model
         checkpoint = self._load_checkpoint() if s.resume else None
+        start_state = None
+        self.init_record: dict | None = None
         if checkpoint is not None:
             model_cfg = EstimatorConfig.from_dict(json.loads(checkpoint["model_config"]))
-        self._start(lambda: EstimatorNet(model_cfg), checkpoint)
+            self.init_record = _previous_init_record(self.run_dir / "run.json")
+        elif s.init_from is not None:
+            model_cfg, start_state, self.init_record = _initial_weights(Path(s.init_from), s.model.row_prior)
+
+        def build() -> EstimatorNet:
+            net = EstimatorNet(model_cfg)
+            if start_state is not None:
+                net.load_state_dict(start_state)
+            return net
+
+        self._start(build, checkpoint)
 
     def _plot_losses(self, out: Path) -> None:
         plot_losses(self.log_path, out)
@@ -244,12 +261,35 @@ class Trainer(TrainingRun):
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),
             "parameters": self.model.parameter_count(), "training_data": self.data.summary(),
-            "skipped": self.report.summary(),
+            "skipped": self.report.summary(), "init_from": self.init_record,
         }
 
     def _export_weights(self, path: Path, training: dict) -> Path:
         return export_weights(self.model, path, iterations=self.iteration, wall_time_s=self.wall_time,
                               training=training, inference_max_pixels=self.settings.inference_max_pixels)
+
+
+def _initial_weights(path: Path, row_prior: bool) -> tuple[EstimatorConfig, dict, dict]:
+    """(config, state dict, record for run.json) of a new run started from the weights in ``path``
+    (``--init-from``), grown by the row prior when ``row_prior`` is asked and the weights lack it."""
+    from .infer import load_estimator
+
+    loaded = load_estimator(path)
+    old = loaded.net.config
+    new = replace(old, row_prior=old.row_prior or row_prior)
+    record = {"path": str(path), "sha256_16": loaded.model_hash, "iterations": loaded.header.get("iterations"),
+              "wall_time_s": loaded.header.get("wall_time_s"), "row_prior_added": new != old}
+    log.info("starting from the weights in %s (%s iterations)%s", path, record["iterations"],
+             ", row prior added" if new != old else "")
+    return new, grow_state_dict(loaded.net.state_dict(), old, new), record
+
+
+def _previous_init_record(run_json: Path) -> dict | None:
+    """The ``init_from`` record of a resumed run (None when it started from scratch or is unknown)."""
+    try:
+        return json.loads(run_json.read_text()).get("init_from")
+    except (OSError, ValueError, AttributeError):
+        return None
 
 
 def export_weights(model: EstimatorNet, path: Path, iterations: int, wall_time_s: float, training: dict,

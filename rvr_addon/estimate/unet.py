@@ -67,7 +67,7 @@ and 0.03 with it.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import NamedTuple
 
 import torch
@@ -97,6 +97,10 @@ class EstimatorConfig:
     max_disparity: soft bound M of |D_rel| (D_rel = M tanh(g / M) + 0.01 g).
     init_disparity: D_rel everywhere at initialisation (the grid head's bias).
     head_gain: the two prediction layers' outputs are multiplied by this (see the module doc).
+    row_prior: feed the grid head one more channel, the row coordinate (-1 at the top of the
+        image, +1 at the bottom), so the network can learn the layout prior of footage (the floor
+        nearer toward the bottom) that a translation-equivariant U-Net cannot express. Off in the
+        first shipped weights; :func:`grow_state_dict` starts a run with it from weights without it.
     """
 
     widths: tuple[int, ...] = (48, 96, 160, 256)
@@ -109,6 +113,7 @@ class EstimatorConfig:
     init_disparity: float = 1.0
     head_gain: float = 10.0
     unshuffle: int = 4
+    row_prior: bool = False
 
     def __post_init__(self) -> None:
         if len(self.widths) < 2:
@@ -199,6 +204,30 @@ def clip_gate(srgb: torch.Tensor, lo: float, hi: float) -> torch.Tensor:
     return t * t * (3.0 - 2.0 * t)
 
 
+def _row_coordinate(x: torch.Tensor, extent: float) -> torch.Tensor:
+    """(B, 1, h, w) row coordinate of the cells of ``x``: -1 at the top edge of the image, +1 at its
+    bottom edge; ``extent`` is the share of the (padded) rows the image covers."""
+    b, _, h, w = x.shape
+    rows = (torch.arange(h, dtype=x.dtype, device=x.device) + 0.5) / (h * extent) * 2.0 - 1.0
+    return rows.view(1, 1, h, 1).expand(b, 1, h, w)
+
+
+def grow_state_dict(state: dict[str, torch.Tensor], old: EstimatorConfig,
+                    new: EstimatorConfig) -> dict[str, torch.Tensor]:
+    """Map the weights of a network with config ``old`` onto one with config ``new`` that differs
+    only by ``row_prior`` switched on: the grid head gains a zero input column, so the grown
+    network computes exactly what the old one did. Raises ValueError for any other difference."""
+    if old == new:
+        return dict(state)
+    if old.row_prior or replace(old, row_prior=True) != new:
+        raise ValueError(f"cannot start a network with config {new.to_dict()} from weights with config "
+                         f"{old.to_dict()}: only switching row_prior on is supported")
+    grown = dict(state)
+    weight = state["grid_head.weight"]
+    grown["grid_head.weight"] = torch.cat([weight, torch.zeros_like(weight[:, :1])], dim=1)
+    return grown
+
+
 def disparity_to_px(disparity_rel: torch.Tensor, frame_width: float | torch.Tensor) -> torch.Tensor:
     """D_rel (% of frame width) -> px of blur radius at aperture 1 for a frame ``frame_width`` px wide."""
     if isinstance(frame_width, torch.Tensor):
@@ -220,7 +249,7 @@ class EstimatorNet(nn.Module):
             self.down.append(nn.ModuleList([_conv(w[i - 1], w[i], stride=2), _conv(w[i], w[i])]))
         self.global_fc = nn.Linear(w[-1], w[-1])
         self.up = nn.ModuleList([_conv(w[i + 1] + w[i], w[i]) for i in range(len(w) - 1)])
-        self.grid_head = _conv(w[cfg.grid_level], cfg.grid_bins, kernel=1)
+        self.grid_head = _conv(w[cfg.grid_level] + int(cfg.row_prior), cfg.grid_bins, kernel=1)
         self.e_head = _conv(w[0], 3)
         for module in self.modules():
             if isinstance(module, (nn.Conv2d, nn.Linear)):  # He init for leaky ReLU: variance-preserving
@@ -266,7 +295,8 @@ class EstimatorNet(nn.Module):
             x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
             x = _act(self.up[level](torch.cat([x, skip], dim=1)))
             if level == cfg.grid_level:
-                grid = self.grid_head(x) * cfg.head_gain
+                feats = torch.cat([x, _row_coordinate(x, h / hp)], dim=1) if cfg.row_prior else x
+                grid = self.grid_head(feats) * cfg.head_gain
         assert grid is not None
         return grid, self.e_head(x) * cfg.head_gain, (hp, wp)
 

@@ -13,6 +13,7 @@ from rvr_addon.errors import InputError
 from rvr_addon.estimate.infer import load_estimator
 from rvr_addon.estimate.losses import LossWeights
 from rvr_addon.estimate.train import Trainer, TrainSettings, sample_loss
+from rvr_addon.estimate.unet import EstimatorConfig
 
 
 @pytest.fixture(scope="module")
@@ -192,3 +193,43 @@ def test_cli_supervised_options(tmp_path, tiny_dataset):
     assert rec["loss_weights"]["disparity_invariant"] is True and rec["whole_frame"] == 1.0
     assert main(["train", "--data", str(tiny_dataset), "-o", str(tmp_path / "x"), "-q",
                  "--supervised-weight", "-1"]) == 2
+
+
+def test_init_from_weights_grows_the_row_prior_and_keeps_the_output(tmp_path, tiny_dataset, capsys):
+    from rvr_addon.cli import main
+
+    first = tmp_path / "first"
+    assert main(["train", "--data", str(tiny_dataset), "-o", str(first), "--crop", "32", "-q",
+                 "--iterations", "3"]) == 0
+    base = load_estimator(first / "estimator.pt").net
+    assert not base.config.row_prior
+    grown = Trainer(settings(tmp_path / "grown", tiny_dataset, init_from=first / "estimator.pt",
+                             model=EstimatorConfig(row_prior=True)))
+    assert grown.model.config.row_prior and grown.iteration == 0
+    x = torch.rand(1, 3, 40, 72)
+    with torch.no_grad():  # the added row channel starts at zero weight: the same prediction
+        assert torch.equal(grown.model(x).disparity_rel, base(x).disparity_rel)
+    record = json.loads((tmp_path / "grown" / "run.json").read_text())["init_from"]
+    assert record["row_prior_added"] and record["iterations"] == 3
+    grown.run(progress=False)
+    assert grown.model.grid_head.weight[:, -1].abs().sum() > 0  # the prior gets a gradient
+    # resumed, the run still says where it started; --init-from with --resume is refused
+    again = Trainer(settings(tmp_path / "grown", tiny_dataset, iterations=12, resume=True))
+    assert again.init_record == record
+    again.close()
+    capsys.readouterr()
+    assert main(["train", "--data", str(tiny_dataset), "-o", str(tmp_path / "grown"), "--crop", "32", "-q",
+                 "--resume", "--init-from", str(first / "estimator.pt")]) == 2
+    assert "--init-from" in capsys.readouterr().err
+
+
+def test_grow_state_dict_refuses_other_changes():
+    from rvr_addon.estimate.unet import EstimatorNet, grow_state_dict
+
+    old = EstimatorConfig(widths=(8, 16, 24))
+    state = EstimatorNet(old).state_dict()
+    assert grow_state_dict(state, old, old).keys() == state.keys()
+    with pytest.raises(ValueError, match="row_prior"):
+        grow_state_dict(state, old, EstimatorConfig(widths=(8, 16, 32), row_prior=True))
+    with pytest.raises(ValueError, match="row_prior"):
+        grow_state_dict(state, EstimatorConfig(widths=(8, 16, 24), row_prior=True), old)
