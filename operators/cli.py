@@ -87,7 +87,7 @@ def _open(args):
     if not args.blend.is_file():
         raise RuntimeError(f"the .blend file '{args.blend}' was not found; give the path of a saved file")
     bpy.ops.wm.open_mainfile(filepath=str(args.blend))
-    scene = bpy.context.scene
+    scene = compat.sequencer_scene(bpy.context)
     editor = scene.sequence_editor
     if editor is None:
         raise RuntimeError(f"'{args.blend}' has no strips (scene '{scene.name}'); add the clip in the Sequencer")

@@ -52,7 +52,8 @@ def sample_values(strip: "Strip", prop: str, scene_frames: Sequence[int]) -> np.
 
 def sample_track(strip: "Strip", scene_frames: Sequence[int], source_frames: Sequence[int]) -> FocusTrack:
     """Focus track of ``strip``: the evaluated focus and aperture at ``scene_frames``, keyed at
-    the matching (0-based) ``source_frames`` of the clip. Negative apertures are clamped to 0."""
+    the matching ``source_frames`` (0-based clip frames, or output frames of a retimed render).
+    Negative apertures are clamped to 0."""
     scene_frames = np.asarray(scene_frames).reshape(-1)
     source_frames = np.asarray(source_frames, dtype=np.int64).reshape(-1)
     if scene_frames.shape != source_frames.shape:
@@ -166,7 +167,7 @@ class RVR_OT_keyframe_toggle(bpy.types.Operator):
 
     def execute(self, context) -> set[str]:
         strip = compat.active_strip(context)
-        frame = float(context.scene.frame_current)
+        frame = float(compat.sequencer_scene(context).frame_current)
         fcurve = find_fcurve(strip, self.prop)
         if fcurve is not None and key_at(strip, self.prop, frame):
             for point in fcurve.keyframe_points:

@@ -158,7 +158,7 @@ class RVR_OT_analyze(JobOperator, bpy.types.Operator):
 
     def _prepare(self, context):
         preferences = prefs.get(context)
-        plan = plan_analyze(context.scene, compat.active_strip(context), preferences)
+        plan = plan_analyze(compat.sequencer_scene(context), compat.active_strip(context), preferences)
         return plan, start_analyze(plan, preferences)
 
     def _apply(self, context, plan: AnalyzePlan, job: AnalyzeJob) -> None:

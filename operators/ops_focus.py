@@ -9,8 +9,9 @@ tracking, the puller, the sparse keyframe list); these operators only translate:
 * engine -> strip (:func:`apply_focus_result`, one step, only when the job finished): the
   tracked boxes and ranges go back onto the NFTs; Auto Focus replaces the targets it proposed
   before and never a kept (manual or edited) one; the keyframe list is written to
-  ``strip.rvr.focus_disparity`` (and ``aperture`` when it varies) as GENERATED keys at
-  ``scene frame = clip_to_scene(clip frame)``, replacing only the keys written last time
+  ``strip.rvr.focus_disparity`` (and ``aperture`` when it varies) as GENERATED keys at the
+  scene frames showing the keys' clip frames (:func:`scene_keys`: a retimed strip shows a clip
+  frame on several scene frames or skips it), replacing only the keys written last time
   (:func:`.fcurves.replace_generated_keys`): keys the editor added or edited stay.
 
 **Track** re-tracks every target in the list and rewrites the focus keys (after the editor
@@ -24,33 +25,26 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import bpy
+import numpy as np
 from bpy.props import EnumProperty, FloatProperty, IntProperty
 
 from . import compat, fcurves, prefs
 from .jobrun import JobOperator
 from .ops_render import poll_clip_strip
 from .props import AUTOFOCUS_PRESETS
-from .source import StripSource, abspath, analysed_cache, resolve_source
+from .source import StripSource, abspath, analysed_cache, clip_info, first_showing, resolve_source
 from ..rvr_addon.errors import InputError
 
 if TYPE_CHECKING:
     from bpy.types import Strip
-
-_SIZES: dict[tuple[str, int], tuple[int, int]] = {}
-
 
 # ----------------------------------------------------------------------------- helpers
 
 
 def clip_size(source: StripSource) -> tuple[int, int]:
     """(width, height) of the strip's clip in native px (probed once per file version)."""
-    from ..rvr_addon.io.video import probe_clip
-
-    key = (str(source.path), source.path.stat().st_mtime_ns)
-    if key not in _SIZES:
-        info = probe_clip(source.path, fps=source.fps)
-        _SIZES[key] = (info.width, info.height)
-    return _SIZES[key]
+    info = clip_info(source.path, source.fps)
+    return info.width, info.height
 
 
 def engine_nft(item):
@@ -109,7 +103,7 @@ def add_target(scene, strip: "Strip", scene_frame: int, x: float, y: float, w: f
 
     source = resolve_source(scene, strip)
     clip_frame = source.scene_to_clip(scene_frame)
-    if not source.shows(clip_frame):
+    if clip_frame is None:
         raise InputError(f"strip '{strip.name}' does not show a clip frame at scene frame {scene_frame} (it shows "
                          f"scene frames {source.span.scene_start}..{source.span.scene_stop - 1}); move the playhead "
                          "over the strip")
@@ -195,6 +189,26 @@ def _strip_of(plan: FocusPlan) -> "Strip":
     return strip
 
 
+def scene_keys(source: StripSource, clip_frames: list[int], values: list[float]) -> list[tuple[float, float]]:
+    """A track keyed at clip frames (linear between keys) as (scene frame, value) keys.
+
+    Each key goes to the first scene frame showing its clip frame (or, on a sped-up strip that
+    skips it, the next clip frame shown); a retimed strip also gets a key where it changes speed
+    between two keys. Every key holds the track's value at the clip frame shown on its scene
+    frame, so the curve follows what is on screen. Not retimed: the engine's keys, shifted.
+    """
+    if not len(clip_frames):
+        return []
+    shown = np.asarray(source.clip_frames)
+    order = np.argsort(clip_frames, kind="stable")
+    frames, vals = np.asarray(clip_frames, np.float64)[order], np.asarray(values, np.float64)[order]
+    at = {first_showing(shown, f) for f in frames}
+    lo, hi = min(at), max(at)
+    at |= {c - source.span.scene_start for c in source.speed_changes if lo < c - source.span.scene_start < hi}
+    at = sorted(at)
+    return [(float(source.span.scene_start + i), float(v)) for i, v in zip(at, np.interp(shown[at], frames, vals))]
+
+
 def apply_focus_result(plan: FocusPlan, result) -> dict:
     """Write the engine's result onto the strip (targets, tracked boxes, generated keys).
 
@@ -235,16 +249,15 @@ def apply_focus_result(plan: FocusPlan, result) -> dict:
     rvr.nft_index = min(rvr.nft_index, max(len(rvr.nfts) - 1, 0))
 
     record = json.loads(rvr.auto_keys) if rvr.auto_keys else {}
-    to_scene = plan.source.clip_to_scene
-    focus_keys = [(to_scene(k.frame + start), k.focus) for k in result.keys]
+    clip_keys = [k.frame + start for k in result.keys]
+    focus_keys = scene_keys(plan.source, clip_keys, [k.focus for k in result.keys])
     _, written, hand = fcurves.replace_generated_keys(strip, "focus_disparity", focus_keys,
                                                       record.get("focus_disparity", ()))
     new_record = {"focus_disparity": written}
     hand_aperture = 0
     apertures = [k.aperture for k in result.keys]
     if max(apertures) - min(apertures) > 1e-6 or record.get("aperture"):
-        ap_keys = [(to_scene(k.frame + start), k.aperture) for k in result.keys] \
-            if max(apertures) - min(apertures) > 1e-6 else []
+        ap_keys = scene_keys(plan.source, clip_keys, apertures) if max(apertures) - min(apertures) > 1e-6 else []
         _, ap_written, hand_aperture = fcurves.replace_generated_keys(strip, "aperture", ap_keys,
                                                                       record.get("aperture", ()))
         new_record["aperture"] = ap_written
@@ -283,7 +296,7 @@ class RVR_OT_track_targets(_FocusJobOperator, bpy.types.Operator):
         return True
 
     def _prepare(self, context):
-        plan = plan_focus(context.scene, compat.active_strip(context), None, 0.0)
+        plan = plan_focus(compat.sequencer_scene(context), compat.active_strip(context), None, 0.0)
         return plan, start_focus(plan)
 
     def _apply(self, context, plan, job) -> None:
@@ -311,7 +324,7 @@ class RVR_OT_auto_focus(_FocusJobOperator, bpy.types.Operator):
         strip = compat.active_strip(context)
         preset = strip.rvr.autofocus_preset if self.preset == "STRIP" else self.preset
         window = strip.rvr.lookahead_s if self.lookahead_s < 0 else self.lookahead_s
-        plan = plan_focus(context.scene, strip, preset, window)
+        plan = plan_focus(compat.sequencer_scene(context), strip, preset, window)
         return plan, start_focus(plan)
 
     def _apply(self, context, plan, job) -> None:
@@ -336,16 +349,16 @@ class RVR_OT_add_focus_target(bpy.types.Operator):
         return poll_clip_strip(cls, context, need_idle=False)
 
     def execute(self, context) -> set[str]:
-        strip = compat.active_strip(context)
-        frame = context.scene.frame_current if self.frame == -(2 ** 30) else self.frame
+        strip, scene = compat.active_strip(context), compat.sequencer_scene(context)
+        frame = scene.frame_current if self.frame == -(2 ** 30) else self.frame
         try:
             if self.x < 0 or self.y < 0:
-                source = resolve_source(context.scene, strip)
+                source = resolve_source(scene, strip)
                 width, height = clip_size(source)
                 x, y = (width / 2, height / 2) if self.x < 0 and self.y < 0 else (self.x, self.y)
             else:
                 x, y = self.x, self.y
-            item = add_target(context.scene, strip, frame, x, y, self.w, self.h)
+            item = add_target(scene, strip, frame, x, y, self.w, self.h)
         except InputError as ex:
             self.report({"ERROR"}, str(ex))
             return {"CANCELLED"}
@@ -414,11 +427,12 @@ class RVR_OT_remove_focus_target(bpy.types.Operator):
 
 
 class RVR_OT_jump_to_target(bpy.types.Operator):
-    """Move the playhead to the focus target's frame"""
+    """Move the playhead to the focus target's frame (the first scene frame showing it)"""
 
     bl_idname = "rvr.jump_to_target"
     bl_label = "Jump to Target"
-    bl_options = {"REGISTER"}
+    bl_options = {"REGISTER", "UNDO_GROUPED"}
+    bl_undo_group = "Frame Change"  # as Blender's own frame jumps: one undo step for a run of jumps
 
     index: IntProperty(name="Index", default=-1, description="Target (-1 = the active one)")
 
@@ -434,14 +448,13 @@ class RVR_OT_jump_to_target(bpy.types.Operator):
             self.report({"ERROR"}, f"no focus target #{index}")
             return {"CANCELLED"}
         rvr.nft_index = index
-        offset = int(strip.animation_offset_start)
-        if compat.strip_type(strip) == "IMAGE":
-            try:
-                offset = resolve_source(context.scene, strip).content_offset
-            except InputError as ex:
-                self.report({"ERROR"}, str(ex))
-                return {"CANCELLED"}
-        context.scene.frame_set(int(strip.frame_start) + rvr.nfts[index].frame - offset)
+        scene = compat.sequencer_scene(context)
+        try:
+            source = resolve_source(scene, strip)
+        except InputError as ex:
+            self.report({"ERROR"}, str(ex))
+            return {"CANCELLED"}
+        scene.frame_set(source.clip_to_scene(rvr.nfts[index].frame))
         return {"FINISHED"}
 
 

@@ -6,6 +6,13 @@ the work, and :func:`add_result_strip` writes the result into the sequencer in o
 after the movie or image sequence is complete. A failure or a cancel leaves strips, F-curves
 and any earlier render exactly as they were.
 
+A retimed strip (retiming keys, strobe, a movie playing at its own frame rate) is rendered
+with one output frame per *scene* frame it shows: frame N of the result is the clip frame the
+strip shows at its N-th scene frame, refocused with the focus and aperture evaluated at that
+scene frame. The result is a plain strip at the scene's frame rate (no retiming of its own, no
+audio: the source's sound strip stays), so it lines up with the source frame by frame and
+plays at the retimed speed. Not retimed, the result is the clip's own frames at its own rate.
+
 Disparity and HDR come from the strip's analysis cache (``strip.rvr.cache_path``, written by
 Analyze; stabilized channels when complete) or else from its Disparity/HDR maps.
 ``execute()`` blocks (scripts, background Blender); ``invoke()`` runs the same job from a timer
@@ -26,7 +33,7 @@ from bpy.app.handlers import persistent
 from . import compat, fcurves
 from .jobrun import STEP_BUDGET_S, TIMER_PERIOD_S, JobOperator, job_running, step_for  # noqa: F401 (re-exported)
 from .source import (CLIP_TYPES, FrameSpan, abspath, analysed_cache, frame_span, resolve_source,  # noqa: F401
-                     safe_file_name)
+                     safe_file_name, scene_fps)
 from ..rvr_addon.errors import InputError
 
 if TYPE_CHECKING:
@@ -86,8 +93,9 @@ def plan_render(scene: "Scene", strip: "Strip") -> RenderPlan:
         raise InputError(f"strip '{strip.name}' has no disparity: run Analyze on it (Refocus panel), or set its "
                          "Disparity maps")
     span = source.span
-    scene_frames = np.arange(span.scene_start, span.scene_stop)
-    track = fcurves.sample_track(strip, scene_frames, np.arange(span.clip_start, span.clip_stop))
+    # retimed: one output frame per scene frame (the clip frame shown there), track by output frame
+    keyed_at = np.arange(span.count) if source.retimed else np.asarray(source.clip_frames)
+    track = fcurves.sample_track(strip, source.scene_frames, keyed_at)
     spec = ApertureSpec(shape=rvr.aperture_shape.lower(), blades=int(rvr.blades),
                         rotation_deg=math.degrees(rvr.rotation), squeeze=float(rvr.squeeze))
     folder = abspath(rvr.output_dir or "//rvr_renders/", "output folder", strip)
@@ -102,7 +110,9 @@ def plan_render(scene: "Scene", strip: "Strip") -> RenderPlan:
         hdr = abspath(rvr.hdr_path, "HDR path", strip) if rvr.hdr_path else None
     settings = RenderSettings(
         input=source.path, depth=depth, hdr=hdr, outputs=[output], track_data=track, spec=spec,
-        start=span.clip_start, stop=span.clip_stop, fps=source.fps, scale=float(rvr.render_size))
+        start=span.clip_start, stop=span.clip_stop, fps=source.fps, scale=float(rvr.render_size),
+        frames=list(source.clip_frames) if source.retimed else None,
+        output_fps=scene_fps(scene) if source.retimed else None)
     return RenderPlan(scene.name, strip.name, settings, output, span, images)
 
 
@@ -198,7 +208,7 @@ class RVR_OT_render_strip(JobOperator, bpy.types.Operator):
         return True
 
     def _prepare(self, context):
-        plan = plan_render(context.scene, compat.active_strip(context))
+        plan = plan_render(compat.sequencer_scene(context), compat.active_strip(context))
         return plan, start_job(plan)
 
     def _apply(self, context, plan: RenderPlan, job) -> None:

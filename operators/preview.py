@@ -218,7 +218,7 @@ def preview_picture(scene, strip, mode: str, width: int = PREVIEW_WIDTH) -> np.n
     except RvrError:
         return None
     clip_frame = source.scene_to_clip(scene.frame_current)
-    if not source.shows(clip_frame):
+    if clip_frame is None:
         return None
     rvr = strip.rvr
     shape = (rvr.aperture_shape.lower(), int(rvr.blades), math.degrees(rvr.rotation), float(rvr.squeeze))

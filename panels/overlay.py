@@ -11,6 +11,8 @@ from __future__ import annotations
 import bpy
 
 from ..operators import compat, preview
+from ..operators.source import resolve_source
+from ..rvr_addon.errors import RvrError
 
 _handle = None
 
@@ -35,20 +37,13 @@ def overlay_shapes(scene, strip) -> dict:
     if size is None:
         return out
     place = preview.placement(strip, *size)
-    frame_start = int(strip.frame_start)
-    offset = int(strip.animation_offset_start)
-    if compat.strip_type(strip) == "IMAGE":  # first file's place in its folder: as resolve_source does
-        from ..operators.source import resolve_source
-        from ..rvr_addon.errors import RvrError
-
-        try:
-            offset = resolve_source(scene, strip).content_offset
-        except RvrError:
-            return out
-    clip_frame = offset + scene.frame_current - frame_start
+    try:  # the frame mapping every operator uses (offsets, retiming); None off the strip
+        clip_frame = resolve_source(scene, strip).scene_to_clip(scene.frame_current)
+    except RvrError:
+        return out
     (x0, y0), (x1, y1) = preview.clip_to_view(place, 0, size[1]), preview.clip_to_view(place, size[0], 0)
     out["picture_rect"] = (x0, y0, x1, y1)
-    if not strip.rvr.show_targets:
+    if not strip.rvr.show_targets or clip_frame is None:
         return out
     focus_on = current_target(strip, clip_frame)
     for nft in strip.rvr.nfts:
@@ -79,7 +74,7 @@ def draw() -> None:
     from gpu_extras.batch import batch_for_shader
 
     context = bpy.context
-    scene = context.scene
+    scene = compat.sequencer_scene(context)
     strip = compat.active_strip(context)
     if scene is None or strip is None or not hasattr(strip, "rvr") or compat.strip_type(strip) not in ("MOVIE", "IMAGE"):
         return

@@ -66,7 +66,7 @@ class RVR_PT_focus(_RefocusTab, bpy.types.Panel):
 
     @classmethod
     def poll(cls, context) -> bool:
-        return context.scene is not None
+        return compat.sequencer_scene(context) is not None
 
     def draw(self, context) -> None:
         layout = self.layout
@@ -78,7 +78,7 @@ class RVR_PT_focus(_RefocusTab, bpy.types.Panel):
             draw_job_status(layout, context.window_manager)
             return
         rvr = strip.rvr
-        frame = context.scene.frame_current
+        frame = compat.sequencer_scene(context).frame_current
 
         col = layout.column()
         draw_animatable(col, strip, "focus_disparity", frame)

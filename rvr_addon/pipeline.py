@@ -10,7 +10,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -43,6 +43,11 @@ class RenderSettings:
         (``frame_%05d.png``; a ``.exr`` pattern writes linear HDR radiance).
     scale: render at this fraction of the clip's size (a proxy, e.g. 0.5); blur radii scale
         with the width, so the picture matches the full-size render, only smaller.
+    frames: the clip frame of each output frame, never decreasing (a slowed-down clip repeats
+        frames, a sped-up one skips some), e.g. what a retimed strip shows on each scene frame;
+        replaces start/stop. The track is then keyed by output frame (0 = the first), and a
+        video output gets no audio (its timing no longer matches the clip's).
+    output_fps: frame rate of a video output (frames/s; None = the clip's).
     """
 
     input: Path
@@ -64,6 +69,8 @@ class RenderSettings:
     max_step: float = 1.0
     min_layers: int = 1
     scale: float = 1.0
+    frames: Sequence[int] | None = None
+    output_fps: float | None = None
 
 
 def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_level: float = 0.999) -> np.ndarray:
@@ -137,6 +144,35 @@ def sequence_writer(out: Path, start: int = 1) -> ImageSequenceWriter:
     return ImageSequenceWriter(directory, pattern=pattern, start=start)
 
 
+def frame_list(frames: Sequence[int], clip: ClipInfo) -> np.ndarray:
+    """``RenderSettings.frames`` checked: whole, non-decreasing clip frames inside the clip."""
+    out = np.asarray(frames).reshape(-1)
+    if out.size == 0 or np.any(out != np.round(out)):
+        raise InputError(f"the frame list for {clip.path} must be a non-empty list of whole frame numbers")
+    out = out.astype(np.int64)
+    back = np.flatnonzero(np.diff(out) < 0)
+    if back.size:
+        raise InputError(f"the frame list for {clip.path} goes back from frame {out[back[0]]} to {out[back[0] + 1]}; "
+                         "frames must never decrease (reversed playback is not supported)")
+    if out[0] < 0 or out[-1] >= clip.frame_count:
+        raise InputError(f"the frame list for {clip.path} asks for frames {out[0]}..{out[-1]} but the clip has "
+                         f"{clip.frame_count} frames (0..{clip.frame_count - 1})")
+    return out
+
+
+def repeat_frames(frames: Iterator[np.ndarray], first: int, wanted: np.ndarray) -> Iterator[np.ndarray]:
+    """The decoded frame of each clip frame in ``wanted`` (non-decreasing), reading ``frames``
+    (which starts at clip frame ``first``) once; stops early when the clip ends."""
+    current, index = None, first - 1
+    for k in wanted:
+        while index < k:
+            current = next(frames, None)
+            index += 1
+            if current is None:
+                return
+        yield current
+
+
 def center_focus(disparity: np.ndarray, fraction: float = 0.2) -> float:
     """Median disparity of the central box (``fraction`` of each side): a default focus."""
     h, w = disparity.shape
@@ -157,12 +193,16 @@ class RenderJob:
         if not (0 < s.scale <= 4):
             raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
         self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)
-        stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
-        if s.start < 0 or s.start >= stop:
-            raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} "
+        self.frame_list = None if s.frames is None else frame_list(s.frames, self.clip)
+        if self.frame_list is not None:
+            start, stop = int(self.frame_list[0]), int(self.frame_list[-1]) + 1
+        else:
+            start, stop = s.start, self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
+        if start < 0 or start >= stop:
+            raise InputError(f"frame range {start}..{stop} is empty for {s.input} "
                              f"({self.clip.frame_count} frames)")
-        self.start, self.stop = s.start, stop
-        self.total = stop - s.start
+        self.start, self.stop = start, stop
+        self.total = stop - start if self.frame_list is None else len(self.frame_list)
         self.depth = open_map_sequence(s.depth, kind="disparity", scale=s.depth_scale, offset=s.depth_offset)
         if len(self.depth) > 1 and len(self.depth) < stop:
             raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "
@@ -195,19 +235,25 @@ class RenderJob:
         s = self.settings
         first_d = self.depth.get(self.start if len(self.depth) > 1 else 0, size=(self.clip.width, self.clip.height))
         size = self.output_size
+        track_start = self.start if self.frame_list is None else 0  # a frame list keys the track by output frame
         if self.track is not None:
-            self._focus, self._aperture = resolve_track(self.track, self.total, start=self.start)
+            self._focus, self._aperture = resolve_track(self.track, self.total, start=track_start)
         else:
             focus = center_focus(first_d) if s.focus is None else float(s.focus)
-            self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total, start=self.start)
+            self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total,
+                                                        start=track_start)
         self._frames = iter_frames(s.input, start=self.start, stop=self.stop)
-        audio = s.input if (s.keep_audio and self.clip.has_audio) else None
+        if self.frame_list is not None:
+            self._frames = repeat_frames(self._frames, self.start, self.frame_list)
+        keep_audio = s.keep_audio and self.clip.has_audio and self.frame_list is None
+        audio = s.input if keep_audio else None
         for out in s.outputs:
             out = Path(out)
             if out.suffix.lower() in VIDEO_SUFFIXES:
-                w = VideoWriter(out, fps=self.clip.fps, size=size, audio_from=audio, audio_start=self.start / self.clip.fps)
+                w = VideoWriter(out, fps=s.output_fps or self.clip.fps, size=size, audio_from=audio,
+                                audio_start=self.start / self.clip.fps)
             else:
-                w = sequence_writer(out, start=self.start + 1)
+                w = sequence_writer(out, start=self.start + 1 if self.frame_list is None else 1)
             self._writers.append(w)
 
     def step(self) -> bool:
@@ -235,7 +281,7 @@ class RenderJob:
 
     def _render(self, frame: np.ndarray, k: int) -> np.ndarray:
         native = (frame.shape[1], frame.shape[0])
-        t = self.start + k
+        t = self.start + k if self.frame_list is None else int(self.frame_list[k])
         exponent = None
         if self.hdr is not None:
             exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=native)

@@ -157,3 +157,40 @@ class OperatorStub:
     def __getattr__(self, name):
         value = getattr(self._cls, name)
         return value.__get__(self) if hasattr(value, "__get__") and callable(value) else value
+
+
+def retime(strip, percent: float, frame: int | None = None) -> None:
+    """Set the speed of the retiming segment of ``strip`` under ``frame`` (default: its first
+    frame) to ``percent`` %, as Strip > Retiming > Set Speed does (4.5 and 5.x)."""
+    import bpy
+
+    scene = strip.id_data
+    scene.sequence_editor.active_strip = strip
+    strip.select = True
+    workspace = bpy.context.workspace
+    if hasattr(workspace, "sequencer_scene"):  # 5.0: the Sequencer edits the workspace's scene
+        workspace.sequencer_scene = scene
+    scene.frame_set(int(strip.frame_final_start) if frame is None else frame)
+    with bpy.context.temp_override(scene=scene):
+        assert bpy.ops.sequencer.retiming_segment_speed_set(speed=percent) == {"FINISHED"}
+
+
+def image_folder(folder, count: int, size=(VSE_W, VSE_H)):
+    """``count`` PNG frames f_0000.png... of noise (seeded) in ``folder``; returns the folder."""
+    import cv2
+    import numpy as np
+
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(0)
+    for i in range(count):
+        cv2.imwrite(str(folder / f"f_{i:04d}.png"), rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8))
+    return folder
+
+
+def color_strip(strips, name: str, channel: int, frame_start: int, length: int):
+    """A colour strip of ``length`` frames in ``strips`` (5.0 ``new_effect(length=)``, 4.5 ``frame_end=``)."""
+    try:
+        return strips.new_effect(name, "COLOR", channel=channel, frame_start=frame_start, length=length)
+    except TypeError:  # 4.5
+        return strips.new_effect(name, "COLOR", channel=channel, frame_start=frame_start,
+                                 frame_end=frame_start + length)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import color_strip
 from layout_recorder import LayoutRecorder
 
 bpy = pytest.importorskip("bpy")
@@ -52,7 +53,7 @@ def test_register_round_trip_twice(addon_package, factory_scene):
 
 def test_strip_properties_defaults(registered, factory_scene, tmp_path):
     editor = factory_scene.sequence_editor_create()
-    strip = editor.strips.new_effect("Color", "COLOR", channel=1, frame_start=1, length=5)
+    strip = color_strip(editor.strips, "Color", 1, 1, 5)
     rvr = strip.rvr
     assert rvr.aperture == 1.0 and rvr.aperture_shape == "DISK" and rvr.output_dir == "//rvr_renders/"
     props = type(rvr).bl_rna.properties
@@ -66,7 +67,7 @@ def test_poll_explains_itself(registered, factory_scene):
     assert not bpy.ops.rvr.render_strip.poll()
     assert not bpy.ops.rvr.cancel_job.poll()
     editor = factory_scene.sequence_editor_create()
-    editor.active_strip = editor.strips.new_effect("Color", "COLOR", channel=1, frame_start=1, length=5)
+    editor.active_strip = color_strip(editor.strips, "Color", 1, 1, 5)
     assert not bpy.ops.rvr.render_strip.poll()  # not a movie/image strip
     with pytest.raises(RuntimeError, match="not a movie or image strip"):
         bpy.ops.rvr.render_strip()
@@ -76,15 +77,21 @@ def test_compat_helpers(registered, factory_scene):
     compat = registered.operators.compat
     assert compat.strips_all(factory_scene) == []
     editor = factory_scene.sequence_editor_create()
-    a = editor.strips.new_effect("A", "COLOR", channel=1, frame_start=1, length=5)
+    a = color_strip(editor.strips, "A", 1, 1, 5)
     meta = editor.strips.new_meta("Meta", channel=3, frame_start=1)
-    b = meta.strips.new_effect("B", "COLOR", channel=1, frame_start=1, length=5)
+    b = color_strip(meta.strips, "B", 1, 1, 5)
     assert {s.name for s in compat.strips_all(factory_scene)} == {"A", "Meta", "B"}
     assert compat.strip_type(a) == "COLOR"
     assert compat.strip_container(factory_scene, b) == meta.strips
     assert compat.strip_container(factory_scene, a) == editor.strips
     editor.active_strip = a
     assert compat.active_strip(bpy.context) == a
+    workspace = bpy.context.workspace
+    if hasattr(workspace, "sequencer_scene"):  # 5.0: the Sequencer edits the workspace's scene
+        workspace.sequencer_scene = bpy.data.scenes.new("Edit")
+        assert compat.sequencer_scene(bpy.context).name == "Edit" and compat.active_strip(bpy.context) is None
+        workspace.sequencer_scene = None
+    assert compat.sequencer_scene(bpy.context) == factory_scene
     # a property group on a strip: path built from the strip (5.0 cannot make it directly)
     path = compat.prop_data_path(editor.strips_all["A"].rvr, "aperture")
     assert path == 'sequence_editor.strips_all["A"].rvr.aperture'
@@ -133,7 +140,7 @@ def test_panel_draw_smoke(registered, factory_scene, tmp_path):
 def test_keyframe_toggle_operator(registered, factory_scene, tmp_path):
     fcurves = registered.operators.fcurves
     editor = factory_scene.sequence_editor_create()
-    strip = editor.strips.new_effect("A", "COLOR", channel=1, frame_start=1, length=10)
+    strip = color_strip(editor.strips, "A", 1, 1, 10)
     editor.active_strip = strip
     factory_scene.frame_set(3)
     strip.rvr.focus_disparity = 2.5

@@ -192,3 +192,33 @@ def test_half_size_proxy_matches_a_downscaled_full_render(frames_dir, tmp_path):
     assert np.abs(down[blurred] - b[blurred]).mean() < 4.0  # code values
     with pytest.raises(InputError, match="scale"):
         RenderJob(RenderSettings(input=frames_dir, depth=tmp_path / "d.npy", outputs=[full], scale=0.0))
+
+
+def test_frame_list_renders_one_output_frame_per_entry(clip_av, frames_dir, depth_dir, tmp_path, stream_info):
+    """``frames``: repeated and skipped clip frames (a retimed strip), the track keyed by output
+    frame; each output frame equals a one-frame render of its clip frame at its focus."""
+    from rvr_addon.io.track import FocusTrack
+
+    frames = [2, 2, 3, 5, 5, 9]
+    track = FocusTrack(np.array([0, 5]), np.array([0.0, 5.0]), np.array([1.0, 1.0]))
+    out = tmp_path / "list"
+    RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[out], track_data=track,
+                             frames=frames)).run(progress=False)
+    written = sorted(out.glob("*.png"))
+    assert len(written) == len(frames)
+    for n in (0, 1, 4):
+        single = tmp_path / f"single_{n}"
+        RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[single], focus=float(n),
+                                 aperture=1.0, start=frames[n], stop=frames[n] + 1)).run(progress=False)
+        np.testing.assert_array_equal(cv2.imread(str(written[n])), cv2.imread(str(next(single.glob("*.png")))))
+    video = tmp_path / "list.mp4"
+    RenderJob(RenderSettings(input=clip_av, depth=depth_dir, outputs=[video], focus=0.0, frames=frames,
+                             output_fps=25.0)).run(progress=False)
+    assert len(list(iter_frames(video))) == len(frames) and "Audio:" not in stream_info(video)
+    from rvr_addon.io.video import probe_clip
+
+    assert probe_clip(video).fps == pytest.approx(25.0)
+    with pytest.raises(InputError, match="never decrease"):
+        RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[out], frames=[3, 2]))
+    with pytest.raises(InputError, match="has 12 frames"):
+        RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[out], frames=[0, CLIP_FRAMES]))
