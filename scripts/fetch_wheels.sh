@@ -6,17 +6,35 @@
 # OpenEXR 3.5.3 and imageio-ffmpeg 0.8.1 publish only manylinux_2_28 wheels (glibc >= 2.28, as
 # Blender 4.2+ itself needs), opencv only manylinux2014: pip is given both platform tags.
 #
-# Usage: scripts/fetch_wheels.sh   (from anywhere; PIP=... to choose the pip)
+# --with-torch also fetches the wheels of the "full" zip (build_extension.py --with-torch),
+# exactly the files scripts/torch_wheels.txt lists: the torch 2.13.0 CPU wheel is copied from
+# $TORCH_WHEEL_DIR (default /opt/wheels) when it is there, else downloaded as exactly
+# torch==2.13.0+cpu from the PyTorch CPU index (never an unpinned torch: that is a multi-GB
+# CUDA build); its dependencies come from PyPI, pinned by their file names.
+#
+# Usage: scripts/fetch_wheels.sh [--with-torch]   (from anywhere; PIP=... to choose the pip)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+WITH_TORCH=0
+for arg in "$@"; do
+    case "$arg" in
+        --with-torch) WITH_TORCH=1 ;;
+        *) echo "usage: scripts/fetch_wheels.sh [--with-torch]" >&2; exit 2 ;;
+    esac
+done
 PIP=${PIP:-pip}
 if ! command -v "$PIP" >/dev/null 2>&1; then
     PIP=".venv/bin/pip"
 fi
+TORCH_WHEEL_DIR=${TORCH_WHEEL_DIR:-/opt/wheels}
+TORCH_INDEX=https://download.pytorch.org/whl/cpu
 mkdir -p wheels
-"$PIP" download --only-binary=:all: --no-deps --python-version 3.11 \
-    --platform manylinux2014_x86_64 --platform manylinux_2_28_x86_64 \
-    -d wheels \
+download() {  # pinned requirements -> ./wheels, binary Linux x86_64 CPython 3.11 wheels only
+    "$PIP" download --only-binary=:all: --no-deps --python-version 3.11 \
+        --platform manylinux2014_x86_64 --platform manylinux_2_28_x86_64 \
+        -d wheels "$@"
+}
+download \
     opencv-contrib-python-headless==4.11.0.86 \
     OpenEXR==3.5.3 \
     imageio-ffmpeg==0.8.1 \
@@ -27,6 +45,37 @@ missing=0
 for wheel in $(sed -n 's|^ *"\./\(wheels/[^"]*\.whl\)",\{0,1\}$|\1|p' blender_manifest.toml); do
     if [ ! -f "$wheel" ]; then
         echo "missing $wheel (named in blender_manifest.toml)" >&2
+        missing=1
+    fi
+done
+[ "$WITH_TORCH" = 1 ] || exit $missing
+
+# --with-torch: the files scripts/torch_wheels.txt names (name-version-...whl -> name==version)
+torch_list=$(grep -v '^ *\(#\|$\)' scripts/torch_wheels.txt)
+pins=()
+for wheel in $torch_list; do
+    name=${wheel%%-*}
+    rest=${wheel#*-}
+    version=${rest%%-*}
+    [ -f "wheels/$wheel" ] && continue
+    if [ "$name" = torch ]; then
+        if [ -f "$TORCH_WHEEL_DIR/$wheel" ]; then
+            cp "$TORCH_WHEEL_DIR/$wheel" wheels/
+        else  # untested here (only PyPI is reachable on the development machine)
+            "$PIP" download --only-binary=:all: --no-deps --python-version 3.11 \
+                --platform manylinux_2_28_x86_64 --index-url "$TORCH_INDEX" \
+                -d wheels "torch==$version"
+        fi
+    else
+        pins+=("$name==$version")
+    fi
+done
+if [ ${#pins[@]} -gt 0 ]; then
+    download "${pins[@]}"
+fi
+for wheel in $torch_list; do
+    if [ ! -f "wheels/$wheel" ]; then
+        echo "missing wheels/$wheel (named in scripts/torch_wheels.txt)" >&2
         missing=1
     fi
 done
