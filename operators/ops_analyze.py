@@ -16,6 +16,8 @@ weights file and the two fixes.
 """
 from __future__ import annotations
 
+import importlib.util
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,6 +28,8 @@ from .jobrun import JobOperator
 from .ops_render import poll_clip_strip
 from .source import StripSource, abspath, cache_folder, resolve_source
 from ..rvr_addon.errors import InputError
+
+log = logging.getLogger(__name__)
 
 ESTIMATE_SHARE = 0.7
 """Share of the progress bar for the estimate (the rest is the stabilization)."""
@@ -63,6 +67,15 @@ def plan_analyze(scene, strip, preferences=None) -> AnalyzePlan:
         if depth is None or preferences.weights_path:
             raise
         weights = None  # depth from elsewhere, no HDR recovery until weights exist
+    if weights is not None and importlib.util.find_spec("torch") is None:
+        if depth is None:
+            raise InputError("Analyze needs torch to run the estimator network, and this Blender has none: install "
+                             "the full build of the extension (rvr_laaf-<version>-full.zip, built with "
+                             "scripts/build_extension.py --with-torch), or set the strip's Disparity maps (depth from "
+                             "elsewhere)")
+        log.warning("torch is not installed: strip '%s' is analysed with its disparity maps and without HDR "
+                    "recovery (install the full build of the extension for the estimator)", strip.name)
+        weights = None
     folder = cache_folder(source, preferences.cache_dir)
     return AnalyzePlan(source, folder, _relative(folder), weights, depth)
 
