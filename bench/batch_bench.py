@@ -15,8 +15,14 @@ wall time from the first task to the last result (cluster start-up excluded, rep
 ``batch.workersN.startup_s``). ``batch.task.<stage>.<size>.s_per_frame`` (wall) and
 ``.cpu_s_per_frame`` (CPU of the worker process and its ffmpeg children: robust to other load
 on the machine) are the summed task times per frame of the 1-worker run (one core per task):
-the per-frame costs a cluster plan scales up (docs/batch.md); ``batch.cache.<size>.mb_per_frame`` the per-clip cache on disk
-(raw + stabilized channels). Tables go to stderr; the last stdout line is DESIGN.md's flat JSON.
+the per-frame costs a cluster plan scales up (docs/batch.md), stages ``estimate``, ``merge_estimates``, ``stabilize``,
+``merge_stabilized``, ``laaf_measure`` (LAAF's per-frame part, chunked), ``autofocus`` (its whole-clip part: one task
+per clip), ``render``, ``finalize`` (encode), and ``batch.task.total.<size>.(cpu_)s_per_frame`` their sum;
+``batch.cache.<size>.mb_per_frame`` the per-clip cache on disk (raw + stabilized channels);
+``batch.laaf.<size>.measure_mb_per_frame`` the LAAF measurement files (kept until the clip's autofocus task ends);
+``batch.io.list_cpu_s_per_packet``, ``batch.io.list_cpu_s_per_call`` (listing packets without decoding, on
+``--clip``) and ``batch.io.<size>.decode_cpu_s_per_frame`` (the first clip) what positioning a chunk costs.
+Tables go to stderr; the last stdout line is DESIGN.md's flat JSON.
 """
 from __future__ import annotations
 
@@ -54,6 +60,39 @@ def make_clips(src: Path, n: int, frames: int, size: tuple[int, int], folder: Pa
         subprocess.run(cmd, check=True)
         clips.append(out)
     return clips
+
+
+def io_costs(clip: Path, long_clip: Path, label: str) -> dict[str, float]:
+    """What positioning a chunk costs (CPU s of this process and its ffmpeg): listing packets
+    without decoding (``io.video.scan_packets``) per call and per packet (a line through a short
+    and a full listing of ``long_clip``), and decoding ``clip`` per frame."""
+    from rvr_addon.batch.stages import cpu_seconds
+    from rvr_addon.io.video import iter_frames, scan_packets
+
+    c0 = cpu_seconds()
+    short = len(scan_packets(long_clip, start=1).packets)
+    c1 = cpu_seconds()
+    full = len(scan_packets(long_clip).packets)
+    c2 = cpu_seconds()
+    frames = sum(1 for _ in iter_frames(clip))
+    c3 = cpu_seconds()
+    per_packet = max(c2 - c1 - (c1 - c0), 0.0) / max(full - short, 1)
+    return {"batch.io.list_cpu_s_per_packet": round(per_packet, 8),
+            "batch.io.list_cpu_s_per_call": round(max(c1 - c0 - short * per_packet, 0.0), 5),
+            f"batch.io.{label}.decode_cpu_s_per_frame": round((c3 - c2) / max(frames, 1), 5)}
+
+
+def measure_mb_per_frame(clip: Path, cache: Path, folder: Path, preset: str | None) -> float:
+    """MB per frame of the LAAF measurement file of a clip (its cache gives the disparity)."""
+    from rvr_addon.io.video import probe_clip
+    from rvr_addon.laaf.analysis import measure_range, write_measurements
+    from rvr_addon.laaf.lookahead import AutofocusSettings
+
+    n = probe_clip(clip).frame_count
+    path = folder / "measure.pkl"
+    settings = AutofocusSettings(input=clip, cache=cache, preset=preset)
+    write_measurements(path, {"range": (0, n)}, measure_range(settings, 0, n))
+    return path.stat().st_size / 2**20 / n
 
 
 def size_label(size: tuple[int, int]) -> str:
@@ -119,10 +158,17 @@ def main() -> int:
                 cache_bytes = sum(f.stat().st_size for f in settings.caches.rglob("frame_*.exr"))
                 out[f"batch.cache.{label}.mb_per_frame"] = round(cache_bytes / 2**20 / report.frames_done, 3)
                 cpu = report.stage_seconds_per_frame(cpu=True)
-                for stage, s in report.stage_seconds_per_frame().items():
+                wall = report.stage_seconds_per_frame()
+                for stage, s in wall.items():
                     key = f"batch.task.{stage.replace(' ', '_')}.{label}"
                     out[f"{key}.s_per_frame"] = round(s, 5)
                     out[f"{key}.cpu_s_per_frame"] = round(cpu.get(stage, 0.0), 5)
+                out[f"batch.task.total.{label}.s_per_frame"] = round(sum(wall.values()), 5)
+                out[f"batch.task.total.{label}.cpu_s_per_frame"] = round(sum(cpu.values()), 5)
+                cache = next(settings.caches.glob(f"{clips[0].stem}-*"))
+                out[f"batch.laaf.{label}.measure_mb_per_frame"] = round(
+                    measure_mb_per_frame(clips[0], cache, tmp, settings.preset), 4)
+                out.update(io_costs(clips[0], args.clip if args.clip.is_file() else clips[0], label))
         if "batch.workers1.fps" in out and "batch.workers2.fps" in out:
             out["batch.speedup_2_vs_1"] = round(out["batch.workers2.fps"] / max(out["batch.workers1.fps"], 1e-9), 3)
         out[f"batch.{label}.frames"] = args.clips * args.frames

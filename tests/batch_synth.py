@@ -82,3 +82,36 @@ class KillOnce(WorkerPlugin):
             return
         self.flag.write_text(f"{os.getpid()} {key}")
         os.kill(os.getpid(), signal.SIGKILL)
+
+
+def make_talking_clip(folder: Path, frames: int = 40) -> tuple[Path, Path, object]:
+    """Two textured heads whose mouths open with their own turns (``laaf_synth.talking_blobs``),
+    as an H.264 MP4 with an audio track (a quiet tone: its voice activity is given to the test
+    separately), one disparity ramp for all frames; returns (clip, depth map, AudioTrack)."""
+    import imageio_ffmpeg
+
+    from laaf_synth import talking_blobs
+    from rvr_addon.laaf.audio import AudioTrack
+
+    fps = 25.0
+    rgb, env, voiced, _ = talking_blobs(n=frames, turns=((4, 17, 0), (22, 36, 1)), fps=fps)
+    h, w = rgb[0].shape[:2]
+    folder.mkdir(parents=True, exist_ok=True)
+    clip = folder / "talk.mp4"
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s",
+           f"{w}x{h}", "-r", str(fps), "-i", "-", "-f", "lavfi", "-i", "sine=frequency=300:sample_rate=16000",
+           "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "12", "-g", "12", "-c:a", "aac", "-shortest", str(clip)]
+    subprocess.run(cmd, input=b"".join(f.tobytes() for f in rgb), check=True, capture_output=True)
+    depth = folder / "depth.npy"
+    np.save(depth, np.tile(np.linspace(-2, 6, w, dtype=np.float32), (h, 1)))
+    return clip, depth, AudioTrack(voiced, env.astype(np.float32), voiced.astype(np.float32), fps)
+
+
+def fake_faces(self, gray: np.ndarray) -> list[tuple[float, float, float, float]]:
+    """Stand-in for FaceBackend.detect on drawn heads (not dlib's business): the two head boxes
+    of ``make_talking_clip``, shifted by a deterministic function of the frame, so boxes and
+    face tracks change over the clip."""
+    h, w = gray.shape
+    shift = float(gray[h // 2, :8].mean() % 5)
+    boxes = [(w * 0.28 - 15 + shift, h / 2 - 18, 30.0, 36.0), (w * 0.72 - 15 - shift, h / 2 - 18, 30.0, 36.0 + shift)]
+    return boxes[: 1 + int(gray[0, 0]) % 2 + (shift > 1)]

@@ -7,9 +7,14 @@ shorter; a remainder under a quarter of a chunk joins the previous chunk). Per s
 * stabilize: the filter's output at t is a function of frames t - P .. t + F only (P past,
   F future frames of the window: causal P = M, F = 0; centred P = M // 2, F = M - P), so
   the chunk reads [a - P, b + F) clipped to the clip and writes [a, b): equal to one pass;
-* autofocus (LAAF) runs over the whole clip in one task: a tracked subject carries its state
-  from its NFT to the next one, however far apart, so no bounded overlap would make chunked
-  decisions equal to one pass. It works at 320 px and costs a small part of a frame's time;
+* LAAF is split (``laaf.analysis``): its per-frame part (decode, shrink to 320 px, disparity,
+  the detectors' ``measure``: face detection, saliency, optical flow, mouth and block motion)
+  is a pure function of frames t - 1 and t and of the boxes of the last face detection, so a
+  measure chunk reads [``analysis_start(a)``, b) and writes [a, b): the same numbers as one pass.
+  What carries state across frames (face tracks, the action memory, speech windows, the
+  combination that reads them, the step detector, KCF tracking of a subject from its NFT to
+  the next, however far apart, the pulls) runs in one autofocus task per clip, in frame order,
+  on those measurements: no bounded overlap would reproduce a tracker at chunk seams;
 * render: per frame given D, E and the focus track: reads exactly [a, b).
 """
 from __future__ import annotations

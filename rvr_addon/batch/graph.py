@@ -3,7 +3,7 @@
 Per clip the graph is (``k`` over the chunks of :func:`.chunks.chunk_ranges`)::
 
     probe -> estimate[k] -> merge_estimates -> stabilize[k] -> merge_stabilized
-          -> autofocus -> render[k] -> finalize
+          -> laaf_measure[k] -> autofocus -> render[k] -> finalize
 
 Probes are submitted first; when one returns, the rest of its clip's graph is submitted
 (its frame count decides the chunks), so a clip that cannot be read fails alone at its
@@ -163,11 +163,12 @@ class BatchRunner:
         merged = self._submit(stages.merge_estimates, plan, "merge-estimates", plan, est)
         stab = [self._submit(stages.stabilize, plan, f"stabilize-{a}", plan, s, a, b, merged) for a, b in ranges]
         stable = self._submit(stages.merge_stabilized, plan, "merge-stabilized", plan, stab)
-        focus = self._submit(stages.autofocus, plan, "autofocus", plan, s, stable)
+        meas = [self._submit(stages.laaf_measure, plan, f"laaf-measure-{a}", plan, s, a, b, stable) for a, b in ranges]
+        focus = self._submit(stages.autofocus, plan, "autofocus", plan, s, meas)
         ren = [self._submit(stages.render, plan, f"render-{a}", plan, s, a, b, focus) for a, b in ranges]
-        final = self._submit(stages.finalize, plan, "finalize", plan, s, self.fingerprint, ranges,
-                             est + [merged] + stab + [stable, focus] + ren)
-        futures = est + [merged] + stab + [stable, focus] + ren + [final]
+        tasks = est + [merged] + stab + [stable] + meas + [focus] + ren
+        final = self._submit(stages.finalize, plan, "finalize", plan, s, self.fingerprint, ranges, tasks)
+        futures = tasks + [final]
         for f in futures:
             self._kind[f.key] = ("final" if f is final else "task", plan)
         return futures

@@ -10,7 +10,10 @@ estimate           ``EstimateJob`` on [a, b)                                   s
 merge_estimates    ``ClipCache.adopt`` of every estimate chunk                 clip cache
 stabilize          ``StabilizeJob`` writing [a, b), reading [a - P, b + F)     staging cache
 merge_stabilized   ``ClipCache.adopt`` of every stabilize chunk                clip cache
-autofocus          ``AutofocusJob`` over the whole clip + ``write_focus_file``  work/focus.json
+laaf_measure       ``laaf.analysis.measure_range`` on [a, b) (from a - 1 and    work/analysis_*
+                   the last face detection before a)
+autofocus          ``AutofocusJob`` over the whole clip on those measurements   work/focus.json
+                   (frame-order state: tracks, tracking, pulls) + focus file
 render             ``RenderJob`` on [a, b) to an image sequence                work/render_*
 finalize           encode / assemble the outputs, done marker                  output folder
 =================  ==========================================================  =============
@@ -201,21 +204,52 @@ def focus_work_path(plan: ClipPlan) -> Path:
     return plan.work / "focus.json"
 
 
-def autofocus(plan: ClipPlan, settings: BatchSettings, merged: dict) -> dict:
-    """LAAF over the whole clip (``AutofocusJob``) -> work/focus.json (kept across re-runs)."""
+def analysis_path(plan: ClipPlan, a: int, b: int) -> Path:
+    """The LAAF measurements of frames [a, b) (deleted once the focus file is written)."""
+    return plan.work / f"analysis_{a:06d}_{b:06d}.pkl"
+
+
+def autofocus_settings(plan: ClipPlan, settings: BatchSettings):
+    """The ``AutofocusSettings`` of the clip: what the measure chunks and the autofocus task share."""
+    from ..laaf.lookahead import AutofocusSettings
+
+    return AutofocusSettings(input=plan.source, cache=plan.cache, preset=settings.preset, window_s=settings.window_s,
+                             causal=settings.causal, pull=settings.pull, aperture=settings.aperture, fps=settings.fps)
+
+
+def laaf_measure(plan: ClipPlan, settings: BatchSettings, a: int, b: int, merged: dict) -> dict:
+    """The per-frame part of LAAF on frames [a, b) (detectors, frames at the analysis size,
+    disparity) into work/analysis_*.pkl; kept when complete from an earlier run."""
+    from ..laaf.analysis import measure_range, read_header, write_measurements
+
+    def run():
+        path = analysis_path(plan, a, b)
+        header = read_header(path)
+        if focus_work_path(plan).is_file() or (header is not None and tuple(header["range"]) == (a, b)):
+            return {"frames": b - a, "reused": True, "range": (a, b)}
+        written = write_measurements(path, {"range": (a, b)}, measure_range(autofocus_settings(plan, settings), a, b))
+        return {"frames": written, "reused": False, "range": (a, b)}
+
+    return _guard("laaf measure", plan, (a, b), run)
+
+
+def autofocus(plan: ClipPlan, settings: BatchSettings, measured: list[dict]) -> dict:
+    """LAAF over the whole clip (``AutofocusJob`` fed the measure chunks, in order) ->
+    work/focus.json (kept across re-runs); then the measurement files are deleted."""
+    from ..laaf.analysis import read_measurements
     from ..laaf.focusfile import write_focus_file
-    from ..laaf.lookahead import AutofocusJob, AutofocusSettings
+    from ..laaf.lookahead import AutofocusJob
 
     def run():
         path = focus_work_path(plan)
-        if path.is_file():  # written atomically by an earlier run with the same settings
-            return {"frames": plan.frames, "reused": True}
-        job = AutofocusJob(AutofocusSettings(
-            input=plan.source, cache=plan.cache, preset=settings.preset, window_s=settings.window_s,
-            causal=settings.causal, pull=settings.pull, aperture=settings.aperture, fps=settings.fps))
-        result = job.run(progress=False)
-        write_focus_file(path, result)
-        return {"frames": plan.frames, "reused": False, "nfts": len(result.nfts)}
+        files = [analysis_path(plan, *c["range"]) for c in measured]
+        if not path.is_file():  # else written atomically by an earlier run with the same settings
+            job = AutofocusJob(autofocus_settings(plan, settings), frames=read_measurements(files))
+            result = job.run(progress=False)
+            write_focus_file(path, result)
+        for f in files:
+            f.unlink(missing_ok=True)
+        return {"frames": plan.frames}
 
     return _guard("autofocus", plan, None, run)
 

@@ -7,15 +7,26 @@ through a pipe, not by cv2.VideoCapture: it converts YUV with the matrix the fil
 with (OpenCV always uses BT.601, which shifts the colours of BT.709 HD video by ~13 levels)
 and applies display rotation, so phone frames come out upright. Image files are read with
 OpenCV. Frames are streamed, never held as a whole clip.
+
+A video range that does not start at frame 0 is positioned by seeking (``seek_point``): from
+the demuxer's packet timestamps (listed without decoding, up to a little past the range:
+``scan_packets``), ffmpeg is sent to the keyframe before the first wanted frame and keeps the
+frames whose presentation time is at least half way between frame start-1 and frame start,
+which are exactly frames start, start+1, ... of a decode from the beginning (frame k being the
+packet with the k-th smallest presentation time; any frame rate, variable too). Where that
+cannot be guaranteed (containers whose seeking is approximate, missing or repeated timestamps,
+a stream that does not begin with a keyframe) it decodes from the beginning.
 """
 from __future__ import annotations
 
 import logging
+import math
 import os
 import re
 import subprocess
 import tempfile
 from dataclasses import dataclass
+from fractions import Fraction
 from pathlib import Path
 from typing import Iterator
 
@@ -256,8 +267,8 @@ class _LogWatch:
         end = os.fstat(self.file.fileno()).st_size
         if end == self.pos:
             return None
-        self.file.seek(self.pos)
-        chunk = self.partial + self.file.read(end - self.pos)
+        # pread, not seek + read: the file offset is shared with ffmpeg, which is still writing
+        chunk = self.partial + os.pread(self.file.fileno(), end - self.pos, self.pos)
         self.pos = end
         lines, _, self.partial = chunk.rpartition(b"\n")
         for match in _SIZE_CHANGE.finditer(lines.decode("utf-8", "replace")):
@@ -268,21 +279,220 @@ class _LogWatch:
         return None
 
 
+# ----------------------------------------------------------------------------- seeking
+
+# Demuxers whose backward seek lands exactly on an indexed keyframe at or before the target
+# (MP4/MOV: the sample table, by decode time; Matroska: the cues, by presentation time).
+# Others (MPEG-TS/PS, AVI, FLV, raw streams) seek approximately: they decode from the start.
+SEEKABLE_FORMATS = ("mov,mp4,m4a,3gp,3g2,mj2", "matroska,webm")
+_INPUT_FORMAT = re.compile(r"Input #0, (\S+), from")
+_TIME_BASE = re.compile(r"^#tb 0: (\d+)/(\d+)", re.MULTILINE)
+_KEY_FLAG = 0x1  # AV_PKT_FLAG_KEY: a random access point (framecrc omits F= when it is the only flag)
+_NOPTS = -(2**63)
+REORDER_FRAMES = 16  # most packets decoded before a packet and shown after it (H.264/HEVC limit)
+FFMPEG_SEEK_BACKOFF = Fraction(3, 23)  # s: ffmpeg's -ss lands this much earlier on streams with B-frames
+
+
+@dataclass(frozen=True)
+class Packet:
+    """One packet of the video stream as the demuxer gives it: dts, pts in stream time-base
+    units (None = unknown), keyframe, discard (decoded but never shown: MP4 edit lists)."""
+
+    dts: int | None
+    pts: int | None
+    key: bool
+    discard: bool
+
+
+@dataclass(frozen=True)
+class PacketScan:
+    """The first video stream's packets in decode order; container: ffmpeg's input format
+    name (e.g. 'mov,mp4,m4a,3gp,3g2,mj2'); time_base: s per timestamp unit; complete: False
+    when the listing stopped early (a prefix of the stream, see :func:`scan_packets`)."""
+
+    container: str
+    time_base: Fraction
+    packets: list[Packet]
+    complete: bool = True
+
+
+def _timestamp(text: str) -> int | None:
+    value = int(text)
+    return None if value == _NOPTS else value
+
+
+def parse_packet(line: str) -> Packet | None:
+    """One packet line of ffmpeg's framecrc listing (None for a header line); F= omitted means key."""
+    if not line.strip() or line.startswith("#"):
+        return None
+    fields = [f.strip() for f in line.split(",")]
+    flags = _PACKET_FLAGS.search(line)
+    bits = int(flags.group(1), 16) if flags else _KEY_FLAG
+    return Packet(_timestamp(fields[1]), _timestamp(fields[2]), bool(bits & _KEY_FLAG), bool(bits & _DISCARD_FLAG))
+
+
+def _time_base(header: list[str]) -> Fraction | None:
+    tb = _TIME_BASE.search("".join(header))
+    return Fraction(int(tb.group(1)), int(tb.group(2))) if tb else None
+
+
+def _container(log_file) -> str | None:
+    """ffmpeg's input format name from its log so far (pread: the file offset is ffmpeg's too)."""
+    fd = log_file.fileno()
+    found = _INPUT_FORMAT.search(os.pread(fd, os.fstat(fd).st_size, 0).decode("utf-8", "replace"))
+    return found.group(1) if found else None
+
+
+def scan_packets(video: Path, start: int | None = None) -> PacketScan | None:
+    """The demuxer's own timestamps (``-copyts``: not shifted to start at 0) and flags of the
+    first video stream's packets, listed by stream copy without decoding (~0.1 ms a packet);
+    None when ffmpeg cannot list them (the decoder will then say why). start: stop once the
+    packets read decide :func:`seek_point` for that frame (``complete`` False), so positioning
+    a chunk lists the file up to the chunk, not to its end."""
+    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-copyts", "-i", str(video), "-map", "0:V:0", "-c", "copy",
+           "-f", "framecrc", "-"]
+    packets: list[Packet] = []
+    header: list[str] = []
+    check = None if start is None else start + 2 * REORDER_FRAMES
+    stopped = False
+    with tempfile.TemporaryFile() as log_file:
+        try:
+            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
+        except OSError:  # pragma: no cover - the binary ships with imageio-ffmpeg
+            return None
+        try:
+            for raw in proc.stdout:
+                packet = parse_packet(raw.decode("ascii", "replace"))
+                if packet is None:
+                    header.append(raw.decode("ascii", "replace"))
+                    continue
+                packets.append(packet)
+                if check is not None and len(packets) >= check:
+                    check += 16
+                    container, tb = _container(log_file), _time_base(header)
+                    if container is None or tb is None:
+                        break
+                    if prefix_decides(PacketScan(container, tb, packets, False), start):
+                        stopped = True
+                        break
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            proc.stdout.close()
+            code = proc.wait()
+        container = _container(log_file)
+    tb = _time_base(header)
+    if container is None or tb is None or (code != 0 and not stopped):
+        return None
+    return PacketScan(container, tb, packets, not stopped)
+
+
+def _shown_and_key(packets: list[Packet], start: int, bound: int | None) -> tuple[list[int], int | None]:
+    """(pts of the shown packets up to ``bound`` (None: all), sorted; decode index of the
+    keyframe to seek to for frame start, None if there is none or too few frames)."""
+    shown = sorted(p.pts for p in packets if not p.discard and (bound is None or p.pts <= bound))
+    if start >= len(shown):
+        return shown, None
+    first = shown[start]
+    needed = min(i for i, p in enumerate(packets) if not p.discard and p.pts >= first)
+    keys = [i for i in range(needed + 1) if packets[i].key and packets[i].pts <= first]
+    return shown, keys[-1] if keys else None
+
+
+def prefix_decides(scan: PacketScan, start: int) -> bool:
+    """True when the packets listed decide frames start - 1 and start, the keyframe to seek to
+    and the keyframe after it (always for a complete listing). In a conforming stream at most
+    REORDER_FRAMES packets decoded before any packet are shown after it (the H.264/HEVC reorder
+    limit, which decoders rely on to output frames in order), so every later packet is shown
+    after all listed packets but the REORDER_FRAMES shown last."""
+    packets = scan.packets
+    if scan.complete or any(p.pts is None for p in packets):
+        return True  # seek_point decides (or refuses) on what is there
+    if len(packets) <= REORDER_FRAMES:
+        return False
+    bound = sorted(p.pts for p in packets)[-REORDER_FRAMES - 1]
+    shown, j = _shown_and_key(packets, start, bound)
+    if start >= len(shown):
+        return False
+    return j is None or any(p.key for p in packets[j + 1:])
+
+
+def seek_point(scan: PacketScan, start: int) -> tuple[float, float] | None:
+    """(seek target s, threshold s) for decoding frames start, start+1, ... of a clip by seeking.
+
+    Frame k of a decode from the beginning is the shown packet with the k-th smallest pts.
+    ffmpeg is sent to the keyframe j at or before (in decode order) every packet of frame start
+    or later, whose pts is at most frame start's (so the frames wanted follow a random access
+    point in decode and in display order); the target is j's index timestamp, so the backward
+    seek lands on j or an earlier keyframe (landing earlier costs decode time, never frames).
+    Frames with t >= threshold (half way between frames start-1 and start) are kept.
+    None when exactness cannot be guaranteed: a container outside SEEKABLE_FORMATS, a missing
+    or repeated timestamp, a stream whose first packet is not a keyframe, start out of range,
+    a listing that stopped before deciding (:func:`prefix_decides`).
+    """
+    packets = scan.packets
+    if scan.container not in SEEKABLE_FORMATS or not packets or not packets[0].key or start < 1:
+        return None
+    if any(p.pts is None or p.dts is None for p in packets) or not prefix_decides(scan, start):
+        return None
+    shown, j = _shown_and_key(packets, start, None)
+    if len(set(shown)) != len(shown) or j is None:
+        return None
+    threshold = Fraction(shown[start - 1] + shown[start], 2) * scan.time_base
+    later = [p for p in packets[j + 1:] if p.key]
+    if not later and not scan.complete:
+        return None
+    return _seek_target(packets[j], later[0] if later else None, scan.time_base), float(threshold)
+
+
+def _seek_target(key: Packet, next_key: Packet | None, time_base: Fraction) -> float:
+    """-ss value (s, whole microseconds, as ffmpeg reads it) whose backward seek lands on ``key``
+    or earlier, never on ``next_key``. The index time of a keyframe is its dts (MP4) or pts
+    (Matroska): min of the two bounds both. ffmpeg itself seeks FFMPEG_SEEK_BACKOFF earlier
+    when the stream has B-frames; the target adds that back as far as the next keyframe allows
+    (ffmpeg rounds the target to the nearest time-base unit: half a unit of margin)."""
+    us = 1_000_000
+    low = math.ceil(Fraction(min(key.dts, key.pts)) * time_base * us)
+    target = low + math.ceil(FFMPEG_SEEK_BACKOFF * us)
+    if next_key is not None:
+        high = math.floor((Fraction(min(next_key.dts, next_key.pts)) - Fraction(1, 2)) * time_base * us) - 1
+        target = max(low, min(target, high))
+    return target / us
+
+
+def _video_command(video: Path, start: int, stop: int | None) -> list[str]:
+    """The ffmpeg command decoding frames start..stop-1 into a PPM pipe (seeking when exact)."""
+    head = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "warning", "-reinit_filter", "0"]
+    tail = ["-map", "0:V:0", "-fps_mode", "passthrough", "-an", "-sn", "-dn"]
+    point = None
+    if start > 0:
+        scan = scan_packets(video, start)
+        point = seek_point(scan, start) if scan is not None else None
+        if point is None:
+            log.debug("'%s': no exact seek point for frame %d; decoding from the first frame", video, start)
+    if point is not None:
+        target, threshold = point
+        cmd = head + ["-seek_timestamp", "1", "-ss", f"{target:.6f}", "-noaccurate_seek", "-copyts",
+                      "-i", str(video), *tail, "-vf", f"select=gte(t\\,{threshold:.9f})"]
+    else:
+        cmd = head + ["-i", str(video), *tail]
+        if start > 0:
+            cmd += ["-vf", f"select=gte(n\\,{start})"]
+    if stop is not None:
+        cmd += ["-frames:v", str(stop - start)]
+    return cmd + ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
+
+
 def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
     """Decode with the bundled ffmpeg into a PPM pipe.
 
     ffmpeg (unlike OpenCV's capture, which always assumes BT.601) converts with the colour
     matrix the file is tagged with (BT.709 for HD phone video) and applies display rotation.
     `-reinit_filter 0` makes a mid-stream resolution change show up in its log instead of
-    being scaled away silently; it is then reported as an InputError.
+    being scaled away silently; it is then reported as an InputError. A range from start > 0
+    seeks where that is exact (module docstring), else decodes from the first frame.
     """
-    cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "warning", "-reinit_filter", "0",
-           "-i", str(video), "-map", "0:V:0", "-fps_mode", "passthrough", "-an", "-sn", "-dn"]
-    if start > 0:
-        cmd += ["-vf", f"select=gte(n\\,{start})"]
-    if stop is not None:
-        cmd += ["-frames:v", str(stop - start)]
-    cmd += ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
+    cmd = _video_command(video, start, stop)
     with tempfile.TemporaryFile() as log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
         watch = _LogWatch(log_file)
@@ -385,8 +595,9 @@ def _size_error(index: int, source: Path, got: tuple, want: tuple) -> InputError
 def iter_frames(path: str | Path, start: int = 0, stop: int | None = None) -> Iterator[np.ndarray]:
     """Yield frames start..stop-1 (stop None = to the end) as (H, W, 3) uint8 RGB.
 
-    Streams one decoded frame at a time. Videos are positioned by decoding forward (exact for
-    every codec and for variable frame rate; costs decode time for a large start). Raises
+    Streams one decoded frame at a time. Videos are positioned by seeking to the keyframe
+    before ``start`` where the packet timestamps make that exact (MP4/MOV, Matroska; any frame
+    rate, variable too), else by decoding forward from the first frame (module docstring). Raises
     VideoOpenError when the clip cannot be opened, InputError when a frame's size differs from
     the first frame's.
     """

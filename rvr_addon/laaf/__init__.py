@@ -5,7 +5,8 @@ Modules (one job each): ``nft`` (targets), ``tracking`` (KCF with loss reporting
 ``focus_reading`` (robust disparity of a box), ``puller`` (pull schedule and profiles),
 ``keyframes`` (sparse linear keys for F-curves), ``detectors/`` (face, saliency, action,
 speech), ``combine`` (the paper's intersection + K-means + discontinuities), ``lookahead``
-(the streaming driver, look-ahead or causal), ``focusfile`` (the JSON ``rvr render`` reads),
+(the streaming driver, look-ahead or causal), ``analysis`` (its per-frame part, measurable in
+chunks by ``rvr batch``), ``focusfile`` (the JSON ``rvr render`` reads),
 ``evaluate`` (``rvr eval-focus``: paper section 6.2 metrics on harness clips).
 """
 from __future__ import annotations

@@ -13,6 +13,10 @@ pull to a target at t can be placed before t only if the target was visible by t
 mode every pull starts after the evidence, i.e. late. The focus of frame t is final once frame
 t + W has been analysed; ``AutofocusResult`` holds the whole (small) per-frame track.
 
+The per-frame work (frames at the analysis size, disparity, the detectors' ``measure``) is done
+by ``analysis.FrameAnalyser`` here, or comes measured already in chunks (``frames=``, from
+``analysis.measure_range``; ``rvr batch``): the result is the same (``analysis`` docstring).
+
 Manual NFTs (``nfts``/``targets``) are tracked from their frame (forward to the next NFT,
 backward over the pull before it); with a preset as well, automatic NFTs closer than
 ``pull_frames`` to a manual one are dropped (the user wins).
@@ -25,13 +29,15 @@ import time
 from collections import deque
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Iterable
 
 import numpy as np
 
 from ..errors import InputError
-from ..io.video import ClipInfo, iter_frames, probe_clip
-from .combine import FALLBACKS, PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
-from .depth import DisparitySource
+from ..io.video import ClipInfo, iter_frames
+from .analysis import (FrameAnalyser, FrameMeasurement, build_detectors, check_frame_size, measured_names, open_clip,
+                       shrink)
+from .combine import PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
 from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
 from .focus_reading import read_focus
 from .keyframes import Key, keyframes
@@ -126,7 +132,9 @@ class AutofocusResult:
 class AutofocusJob:
     """Stepwise LAAF over one clip: ``while job.step(): pass``, then ``job.result``."""
 
-    def __init__(self, settings: AutofocusSettings) -> None:
+    def __init__(self, settings: AutofocusSettings, frames: Iterable[FrameMeasurement] | None = None) -> None:
+        """frames: the run's frames measured already (``analysis.measure_range`` on chunks, in
+        order), instead of decoding and measuring them here; the result is the same."""
         s = self.settings = settings
         s.pull.check()
         if s.preset is None and s.targets is None and s.nfts is None:
@@ -137,17 +145,13 @@ class AutofocusJob:
             raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
         if s.window_s < 0:
             raise InputError(f"--window {s.window_s} must be >= 0 seconds (0 = causal)")
-        self.clip = probe_clip(s.input, fps=s.fps)
-        stop = self.clip.frame_count if s.stop is None else min(s.stop, self.clip.frame_count)
-        if s.start < 0 or s.start >= stop:
-            raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} ({self.clip.frame_count} frames)")
-        self.start, self.stop = s.start, stop
-        self.n = stop - s.start
-        self.fps = self.clip.fps
-        self.depth = DisparitySource(cache=s.cache, depth=s.depth, scale=s.depth_scale, offset=s.depth_offset)
-        self.depth.check_length(self.n, self.start)
-        self.scale = min(1.0, s.analysis_width / self.clip.width)
-        self.size = (max(int(round(self.clip.width * self.scale)), 8), max(int(round(self.clip.height * self.scale)), 8))
+        self.setup = open_clip(s)
+        self.clip = self.setup.clip
+        self.start, self.stop = self.setup.start, self.setup.stop
+        self.n = self.setup.n
+        self.fps = self.setup.fps
+        self.depth = self.setup.depth
+        self.scale, self.size = self.setup.scale, self.setup.size
         self.window = 0 if s.causal else int(round(s.window_s * self.fps))
         self.causal = s.causal or self.window == 0
         manual = list(s.nfts or [])
@@ -156,10 +160,15 @@ class AutofocusJob:
         manual = [replace(n, t=n.t - self.start, known_at=0) for n in manual] if self.start else manual
         self.manual = validate_nfts(manual, self.n, self.clip.width, self.clip.height,
                                     where=f"NFTs of '{s.targets}'" if s.targets else "NFTs") if manual else []
-        self.preset_used: str | None = s.preset
-        self.fallback_note = ""
-        self.detectors: dict[str, FocusDetector] = {}
-        self._build_detectors()
+        built = build_detectors(s, self.setup, self.causal)
+        self.detectors: dict[str, FocusDetector] = built.detectors
+        self._combo: tuple[str, ...] = built.combo
+        self.preset_used: str | None = built.preset_used
+        self.fallback_note = built.fallback_note
+        speech = self.detectors.get("speech")
+        measured = measured_names(self.detectors, speech is not None and speech.available)
+        self.analyser = FrameAnalyser(self.detectors, measured)
+        self._measured_frames = frames
         self.learned = self.detectors.get("afnet")  # preset 'learned': AF-Net proposes the NFTs itself
         self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
                                           causal=self.causal)
@@ -183,63 +192,43 @@ class AutofocusJob:
         self._timings = {"decode_s": 0.0, "depth_s": 0.0, "detect_s": 0.0, "combine_s": 0.0, "track_s": 0.0}
         self.text = f"autofocus on {self.n} frames of {self.clip.path.name}"
 
-    # -- setup ------------------------------------------------------------------------------
-    def _build_detectors(self) -> None:
-        s = self.settings
-        if s.preset is None:
-            self._combo: tuple[str, ...] = ()
-            return
-        names = list(PRESETS[s.preset])
-        if "afnet" in names:
-            from .detectors.afnet import AFNetDetector
-
-            self.detectors["afnet"] = AFNetDetector(s.afnet_weights, self.n, self.fps, s.afnet_threshold)
-        from .detectors.action import ActionDetector
-        from .detectors.face import FaceDetector
-        from .detectors.saliency import SaliencyDetector
-        from .detectors.speech import SpeechDetector
-
-        face = None
-        if "face" in names or "speech" in names:
-            face = FaceDetector(backend=s.face_backend, every=s.face_every)
-            self.detectors["face"] = face
-        if "saliency" in names:
-            self.detectors["saliency"] = SaliencyDetector()
-        if "action" in names:
-            self.detectors["action"] = ActionDetector()
-        if "speech" in names:
-            media = self.clip.path if self.clip.kind == "video" and self.clip.has_audio else None
-            speech = SpeechDetector(face, self.fps, self.n, media=media, start_frame=self.start,
-                                    window_s=s.speech_window_s, causal=self.causal)
-            if media is None:
-                speech.available = False
-                speech.unavailable_reason = f"speech detector off: '{self.clip.path}' has no audio track"
-                log.warning("%s; preset %s falls back to %s", speech.unavailable_reason, s.preset,
-                            FALLBACKS.get(s.preset))
-            self.detectors["speech"] = speech
-            if not speech.available:
-                names.remove("speech")
-                self.preset_used = FALLBACKS.get(s.preset, s.preset)
-                self.fallback_note = f"{speech.unavailable_reason}; preset {s.preset} fell back to {self.preset_used}"
-        self._combo = tuple(names)
-
     # -- stream -----------------------------------------------------------------------------
     @property
     def progress(self) -> float:
         """Fraction of frames analysed, 0..1."""
         return self._k / self.n if self.n else 1.0
 
-    def _analysis_frame(self, rgb: np.ndarray, k: int) -> AnalysisFrame:
-        import cv2
+    def _analyse(self, item, k: int) -> tuple[AnalysisFrame, dict[str, object], dict[str, float]]:
+        """(analysis frame k, detector measurements, seconds per part): measured here from a
+        decoded frame, or taken from a FrameMeasurement (``frames=``)."""
+        if isinstance(item, FrameMeasurement):
+            if item.t != k or (item.rgb.shape[1], item.rgb.shape[0]) != tuple(self.size):
+                raise InputError(f"the LAAF measurements of {self.settings.input} give frame {item.t} at "
+                                 f"{item.rgb.shape[1]}x{item.rgb.shape[0]} px where frame {k} at {self.size[0]}x"
+                                 f"{self.size[1]} px was due; measure the chunks with these settings, in order")
+            small, gray = shrink(item.rgb, self.size)
+            return AnalysisFrame(k, small, gray, item.disparity, self.scale, self.fps), item.features, item.seconds
+        check_frame_size(item, self.clip, k, self.settings.input)
+        af, seconds = self.setup.frame(item, k)
+        features, det_seconds = self.analyser.measure(af)
+        return af, features, {**seconds, **det_seconds}
 
+    def _ingest(self, k: int, af: AnalysisFrame, features: dict[str, object], seconds: dict[str, float]) -> None:
+        """Every available detector takes frame k and its measurement, in frame order."""
         t0 = time.perf_counter()
-        small = rgb if self.scale == 1.0 else cv2.resize(rgb, self.size, interpolation=cv2.INTER_AREA)
-        gray = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-        t1 = time.perf_counter()
-        disp = self.depth.get(self.start + k, self.size)
-        self._timings["depth_s"] += time.perf_counter() - t1
-        self._timings["decode_s"] += t1 - t0
-        return AnalysisFrame(k, small, gray, disp, self.scale, self.fps)
+        for name, det in self.detectors.items():
+            if not det.available:
+                continue
+            if det.measures:
+                if name not in features:
+                    raise InputError(f"the LAAF measurements of frame {k} of {self.settings.input} lack detector "
+                                     f"{name}; measure the chunks with the settings of this run")
+                det.add_seconds(seconds.get(name, 0.0))
+            det.ingest(k, af, features.get(name))
+        measured = sum(seconds.get(name, 0.0) for name in self.detectors)
+        self._timings["detect_s"] += time.perf_counter() - t0 + measured
+        self._timings["decode_s"] += seconds.get("decode", 0.0)
+        self._timings["depth_s"] += seconds.get("depth", 0.0)
 
     def _frame(self, k: int) -> AnalysisFrame | None:
         for f in self.buffer:
@@ -252,25 +241,22 @@ class AutofocusJob:
         if self._finished:
             return False
         if self._frames is None:
-            self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
+            if self._measured_frames is not None:
+                self._frames = iter(self._measured_frames)
+            else:
+                self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
         t0 = time.perf_counter()
-        rgb = next(self._frames, None)
+        item = next(self._frames, None) if self._k < self.n else None
         self._timings["decode_s"] += time.perf_counter() - t0
-        if rgb is None or self._k >= self.n:
+        if item is None:
             if self._k < self.n:
                 raise InputError(f"{self.settings.input} ended after {self._k} of {self.n} frames")
             self._finish()
             return False
-        if (rgb.shape[1], rgb.shape[0]) != (self.clip.width, self.clip.height):
-            raise InputError(f"frame {self._k} of {self.settings.input} has another size than the first frame")
         k = self._k
-        af = self._analysis_frame(rgb, k)
+        af, features, seconds = self._analyse(item, k)
         self.buffer.append(af)
-        t0 = time.perf_counter()
-        for det in self.detectors.values():
-            if det.available:
-                det.process(k, af)
-        self._timings["detect_s"] += time.perf_counter() - t0
+        self._ingest(k, af, features, seconds)
         while self._measured <= k - self.detector_lag:
             self._measure(self._measured, ingest=k)
             self._measured += 1

@@ -1,5 +1,6 @@
 """rvr batch: chunk plans, staging caches, chunked == single-process output, a killed worker,
-bad input, re-runs, the missing-weights error. Clips are 64x36, 12 frames; the estimator
+bad input, re-runs, the missing-weights error; LAAF measured in chunks == one pass, exactly.
+Clips are 64x36, 12 frames; the estimator
 weights are untrained (exported for the tests only; the shipped model is not used)."""
 from __future__ import annotations
 
@@ -67,9 +68,9 @@ def assert_same_as_reference(out: Path, settings: BatchSettings, reference: dict
     assert len(got) == len(want) == N
     for g, w in zip(got, want):
         np.testing.assert_allclose(g, w, rtol=1e-5, atol=1e-5)
-    focus = json.loads((out / f"{name}.focus.json").read_text())["per_frame"]
-    ref_focus = json.loads(reference["focus"].read_text())["per_frame"]
-    np.testing.assert_allclose(focus["focus"], ref_focus["focus"], atol=1e-6)
+    focus, ref_focus = json.loads((out / f"{name}.focus.json").read_text()), json.loads(reference["focus"].read_text())
+    np.testing.assert_allclose(focus["per_frame"]["focus"], ref_focus["per_frame"]["focus"], atol=1e-6)
+    assert focus["keys"] == ref_focus["keys"] and focus["nfts"] == ref_focus["nfts"]  # LAAF measured in chunks
     cache = next(settings.caches.glob(f"{name}-*"))
     for i in range(N):
         g, w = read_exr(frame_path(cache, i)), read_exr(frame_path(reference["cache"], i))
@@ -143,7 +144,8 @@ def test_chunked_batch_equals_the_single_process_commands(tmp_path, data, client
     report = run_batch([data["a"]], settings, client=client, progress=False)
     assert [c.status for c in report.clips] == ["done"], report.table()
     assert_same_as_reference(tmp_path / "out", settings, reference)
-    assert report.frames_done == N and report.fps > 0 and "estimate" in report.stage_seconds_per_frame()
+    assert report.frames_done == N and report.fps > 0
+    assert {"estimate", "laaf measure", "autofocus", "render"} <= set(report.stage_seconds_per_frame())
     assert set(loads_per_worker(client).values()) <= {0, 1}  # the model is loaded once per worker process
     assert not (tmp_path / "out" / ".rvr_batch" / "work").exists()  # work folders are cleaned up
 
@@ -197,3 +199,69 @@ def test_missing_weights_name_the_file_before_any_cluster_starts(tmp_path, data,
     assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--weights", str(tmp_path / "nope.pt")]) == 2
     assert "nope.pt' not found" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------------------ LAAF in chunks
+
+
+def test_analysis_chunks_read_the_frame_before_and_the_last_face_detection():
+    from rvr_addon.laaf.analysis import analysis_start
+
+    assert analysis_start(0, 6) == 0 and analysis_start(1, 6) == 0
+    assert analysis_start(7, 6) == 6 and analysis_start(12, 6) == 11 and analysis_start(17, 6) == 12
+    assert analysis_start(17, None) == 16  # no face detector: only the frame before
+
+
+def _laaf_outcome(result) -> dict:
+    """Everything an AutofocusResult decides (not its timings)."""
+    return {"keys": [(k.frame, k.focus, k.aperture) for k in result.keys], "focus": result.focus.tolist(),
+            "aperture": result.aperture.tolist(), "nfts": result.nfts, "tracking": result.tracking,
+            "raw": np.nan_to_num(result.signal["raw"], nan=-99).tolist(),
+            "held": np.nan_to_num(result.signal["held"], nan=-99).tolist(), "boxes": result.boxes,
+            "detectors": {n: {k: v for k, v in m.items() if not k.startswith("s_per")}
+                          for n, m in result.detectors.items()}}
+
+
+def _chunked_laaf(settings, folder: Path, n: int, chunk: int):
+    """LAAF measured in chunks (files written and read back), decided in one AutofocusJob."""
+    from rvr_addon.laaf.analysis import measure_range, read_measurements, write_measurements
+    from rvr_addon.laaf.lookahead import AutofocusJob
+
+    files = []
+    for a, b in chunk_ranges(n, chunk):
+        files.append(folder / f"analysis_{a:06d}.pkl")
+        assert write_measurements(files[-1], {"range": (a, b)}, measure_range(settings, a, b)) == b - a
+    return AutofocusJob(settings, frames=read_measurements(files)).run(progress=False)
+
+
+def test_laaf_measured_in_chunks_equals_one_pass_action(tmp_path):
+    """Action + saliency (optical flow, decaying motion memory) on a PNG sequence, chunks of 7."""
+    from laaf_synth import entering_square, write_clip
+    from rvr_addon.laaf.lookahead import AutofocusJob, AutofocusSettings
+
+    frames, maps, _ = entering_square(n=40, enter=20)
+    fdir, ddir = write_clip(tmp_path, frames, maps)
+    settings = AutofocusSettings(input=fdir, depth=ddir, preset="action", fps=24)
+    one = AutofocusJob(settings).run(progress=False)
+    chunked = _chunked_laaf(settings, tmp_path / "work", 40, 7)
+    assert len(one.nfts) >= 2 and one.detectors["action"]["homography_failures"] >= 0
+    assert _laaf_outcome(chunked) == _laaf_outcome(one)
+
+
+def test_laaf_measured_in_chunks_equals_one_pass_conversation(tmp_path, monkeypatch):
+    """Face tracks (detected every 6 frames: chunk starts 7, 14, ... fall between detections),
+    mouth motion and audio-visual synchrony of the speech detector, on an MP4 with audio."""
+    from batch_synth import fake_faces, make_talking_clip
+    from rvr_addon.laaf.detectors import face, speech
+    from rvr_addon.laaf.lookahead import AutofocusJob, AutofocusSettings
+
+    clip, depth, audio = make_talking_clip(tmp_path)
+    monkeypatch.setattr(face.FaceBackend, "detect", fake_faces)
+    monkeypatch.setattr(speech, "analyse_audio", lambda samples, fps, n, **kw: audio)
+    settings = AutofocusSettings(input=clip, depth=depth, preset="conversation", face_backend="haar")
+    one = AutofocusJob(settings).run(progress=False)
+    m = one.detectors
+    assert m["speech"]["available"] and m["speech"]["speaker_frames"] > 0 and m["face"]["face_tracks"] >= 2
+    assert one.settings["preset_used"] == "conversation" and len(one.nfts) >= 2
+    chunked = _chunked_laaf(settings, tmp_path / "work", 40, 7)
+    assert _laaf_outcome(chunked) == _laaf_outcome(one)

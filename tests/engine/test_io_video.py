@@ -222,3 +222,129 @@ def test_variable_frame_rate_warns(ffmpeg_run, tmp_path, caplog):
     assert info.frame_count == 12
     assert sum(1 for _ in iter_frames(path)) == 12
     assert any("variable-frame-rate" in r.getMessage() and "vfr.mp4" in r.getMessage() for r in caplog.records)
+
+
+# ----------------------------------------------------------------------------- seeking
+
+
+SEEK_FRAMES = 110  # keyframes at 0, 50, 100 (-g 50, no scene-cut keyframes)
+_SPARSE_GOP = ["-c:v", "libx264", "-preset", "ultrafast", "-pix_fmt", "yuv420p", "-g", "50", "-keyint_min", "50",
+               "-sc_threshold", "0", "-bf", "3", "-x264-params", "b-pyramid=normal"]
+
+
+@pytest.fixture(scope="module")
+def seek_clips(ffmpeg_run, tmp_path_factory) -> dict:
+    """H.264 with B-frames and sparse keyframes in several containers and timings (64x48)."""
+    root = tmp_path_factory.mktemp("seek")
+    src = ["-f", "lavfi", "-i", "testsrc2=size=64x48:rate=24", "-frames:v", str(SEEK_FRAMES)]
+    clips = {}
+    for name, extra in {"mp4": [], "mkv": [], "ts": []}.items():
+        clips[name] = root / f"sparse.{name}"
+        ffmpeg_run(*src, *_SPARSE_GOP, *extra, str(clips[name]))
+    clips["ntsc"] = root / "ntsc.mp4"  # 29.97 fps: time base 1/30000, 1001 units per frame
+    ffmpeg_run("-f", "lavfi", "-i", "testsrc2=size=64x48:rate=30000/1001", "-frames:v", str(SEEK_FRAMES),
+               *_SPARSE_GOP, str(clips["ntsc"]))
+    clips["vfr"] = root / "vfr.mp4"  # 24 fps for 40 frames, then 8 fps
+    ffmpeg_run(*src, "-vf", "setpts='if(lt(N,40),N/24,40/24+(N-40)/8)/TB'", "-fps_mode", "vfr",
+               *_SPARSE_GOP, str(clips["vfr"]))
+    clips["open_gop"] = root / "open_gop.mp4"  # non-IDR keyframes: leading B-frames reference the GOP before
+    ffmpeg_run(*src, *_SPARSE_GOP[:-1], "b-pyramid=normal:open-gop=1", str(clips["open_gop"]))
+    return clips
+
+
+SEEK_STARTS = [1, 2, 49, 50, 51, 77, 99, 100, 101, SEEK_FRAMES - 1]
+
+
+@pytest.mark.parametrize("name", ["mp4", "mkv", "ntsc", "vfr", "open_gop"])
+def test_iter_frames_seeks_and_yields_exactly_the_frames_of_a_full_decode(seek_clips, name):
+    from rvr_addon.io.video import _video_command, scan_packets, seek_point
+
+    path = seek_clips[name]
+    scan = scan_packets(path)
+    full = list(iter_frames(path))
+    assert len(full) == SEEK_FRAMES == probe_clip(path).frame_count
+    shown = sorted(p.pts for p in scan.packets)
+    # the keyframes (display index) the starts are about: on them, just before and just after
+    keys = [i for i, p in enumerate(scan.packets) if p.key]
+    assert [shown.index(scan.packets[i].pts) for i in keys] == [0, 50, 100]
+    leading = [p for p in scan.packets[keys[1]:] if p.pts < scan.packets[keys[1]].pts]
+    assert bool(leading) == (name == "open_gop")  # frames shown before the keyframe but decoded after it
+    assert any(p.pts != p.dts for p in scan.packets)  # B-frames: decode order differs from display order
+    for k in SEEK_STARTS:
+        prefix = scan_packets(path, start=k)  # what iter_frames lists: up to the chunk, not the whole file
+        assert seek_point(prefix, k) == seek_point(scan, k) is not None and "-ss" in _video_command(path, k, None), k
+        if k < 50:  # decided by the keyframe at 50: the listing stops before the end of the file
+            assert not prefix.complete and len(prefix.packets) < SEEK_FRAMES, k
+        part = list(iter_frames(path, start=k))
+        assert len(part) == SEEK_FRAMES - k, k
+        for i, (got, want) in enumerate(zip(part, full[k:])):
+            np.testing.assert_array_equal(got, want, err_msg=f"{name}: frame {k + i} decoded from start={k}")
+    window = list(iter_frames(path, start=51, stop=54))
+    assert len(window) == 3 and all(np.array_equal(g, w) for g, w in zip(window, full[51:54]))
+
+
+def test_seeking_honours_edit_lists_and_rotation(clip_trimmed, clip_rotated):
+    from rvr_addon.io.video import _video_command
+
+    for path, start in ((clip_trimmed, 13), (clip_rotated, 5)):
+        full = list(iter_frames(path))
+        assert "-ss" in _video_command(path, start, None)
+        part = list(iter_frames(path, start=start))
+        assert len(part) == len(full) - start
+        assert all(np.array_equal(g, w) for g, w in zip(part, full[start:]))
+
+
+def test_containers_without_exact_seeking_decode_from_the_start(seek_clips):
+    from rvr_addon.io.video import _video_command, scan_packets, seek_point
+
+    path = seek_clips["ts"]  # MPEG-TS seeks by approximate bisection: never trusted
+    assert scan_packets(path).container == "mpegts" and seek_point(scan_packets(path), 51) is None
+    assert "-ss" not in _video_command(path, 51, None)
+    full = list(iter_frames(path))
+    part = list(iter_frames(path, start=51, stop=60))
+    assert len(part) == 9 and all(np.array_equal(g, w) for g, w in zip(part, full[51:60]))
+
+
+def _scan(packets: list[tuple[int, int, bool]], container: str = "mov,mp4,m4a,3gp,3g2,mj2"):
+    from fractions import Fraction
+
+    from rvr_addon.io.video import Packet, PacketScan
+
+    return PacketScan(container, Fraction(1, 100), [Packet(d, p, k, False) for d, p, k in packets])
+
+
+def test_seek_point_refuses_what_it_cannot_guarantee():
+    from rvr_addon.io.video import seek_point
+
+    # decode order I0 P3 B1 B2 I6(open GOP) B4 B5 P7: frames 4 and 5 are leading pictures of I6
+    gop = [(0, 0, True), (10, 30, False), (20, 10, False), (30, 20, False), (40, 60, True), (50, 40, False),
+           (60, 50, False), (70, 70, False)]
+    target, threshold = seek_point(_scan(gop), 4)
+    assert target < 0.40 and threshold == pytest.approx(0.35)  # lands on I0, not on I6 (after frame 4 in decode order)
+    target, threshold = seek_point(_scan(gop), 6)
+    assert 0.40 <= target < 0.60 and threshold == pytest.approx(0.55)  # I6 or earlier, never the key after it
+    assert seek_point(_scan(gop), 8) is None  # past the end
+    assert seek_point(_scan(gop, container="mpegts"), 4) is None
+    assert seek_point(_scan([(0, 0, False)] + gop[1:]), 4) is None  # does not start with a keyframe
+    assert seek_point(_scan(gop[:2] + [(20, 30, False)] + gop[3:]), 4) is None  # a repeated pts
+    assert seek_point(_scan(gop[:2] + [(20, None, False)] + gop[3:]), 4) is None  # a missing pts
+
+
+def test_a_listing_prefix_decides_only_what_later_packets_cannot_change():
+    from dataclasses import replace
+
+    from rvr_addon.io.video import prefix_decides, seek_point
+
+    # I0 P100 B1 .. B99 I101 P102 (decode order; legal with one reorder frame): B99, listed 98
+    # packets after P100, is shown before it. A prefix must not take P100 for frame 2.
+    full = _scan([(0, 0, True), (1, 100, False)] + [(1 + i, i, False) for i in range(1, 100)]
+                 + [(101, 101, True), (102, 102, False)])
+    decided = {}
+    for length in range(1, len(full.packets)):
+        prefix = replace(full, packets=full.packets[:length], complete=False)
+        for start in (1, 5, 60, 99, 100):
+            if prefix_decides(prefix, start):
+                decided.setdefault(start, length)
+                assert seek_point(prefix, start) == seek_point(full, start), (length, start)
+    assert decided == {1: 102, 5: 102, 60: 102}  # the keyframe after I0 decides the seek target
+    assert seek_point(full, 100)[0] < 0.2 <= 1.01 <= seek_point(full, 101)[0]  # P100 follows I0 in decode order

@@ -59,7 +59,7 @@ class ActionDetector(FocusDetector):
         self.border_frac = border_frac
         self._dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
         self._dis.setFinestScale(1)  # the preset stops at 1/4 resolution: a walker's flow came out halved
-        self._prev: np.ndarray | None = None
+        self._prev: AnalysisFrame | None = None  # the frame before (process only)
         self._acc: np.ndarray | None = None
         self._heat: dict[int, np.ndarray] = {}
         self._seconds = 0.0
@@ -107,9 +107,16 @@ class ActionDetector(FocusDetector):
 
     def camera_flow(self, prev: np.ndarray, cur: np.ndarray,
                     disparity: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(flow, camera flow), each (h, w, 2) float32 px/frame of these grey frames: the dense
-        DIS flow from ``prev`` to ``cur`` (``prev(x) ~ cur(x + flow(x))``) and the part of it the
-        camera explains.
+        """(flow, camera flow) of :meth:`camera_motion`, counting homography failures."""
+        flow, cam, failed = self.camera_motion(prev, cur, disparity)
+        self._homography_failures += failed
+        return flow, cam
+
+    def camera_motion(self, prev: np.ndarray, cur: np.ndarray,
+                      disparity: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(flow, camera flow, failed), flows (h, w, 2) float32 px/frame of these grey frames: the
+        dense DIS flow from ``prev`` to ``cur`` (``prev(x) ~ cur(x + flow(x))``) and the part of it
+        the camera explains; failed: no homography could be fitted (the median flow was used).
 
         disparity: (h, w) map of the current frame (any affine unit of inverse depth), or None.
         Camera motion model: a homography fitted with RANSAC to a grid of the DIS flow; with a
@@ -132,17 +139,16 @@ class ActionDetector(FocusDetector):
             nx, ny = (gx - w / 2) / (w / 2), (gy - h / 2) / (w / 2)
             A = self._design(nx[ys, xs].ravel(), ny[ys, xs].ravel(), dn[ys, xs].ravel())
             coef = self._ransac_fit(A, fl)
-            return flow, np.einsum("hwk,kc->hwc", self._design(nx, ny, dn), coef).astype(np.float32)
+            return flow, np.einsum("hwk,kc->hwc", self._design(nx, ny, dn), coef).astype(np.float32), False
         src = np.stack([xs.ravel(), ys.ravel()], 1).astype(np.float32)
         H, _ = cv2.findHomography(src, src + fl, cv2.RANSAC, self.ransac_px, maxIters=500)
         if H is None:
-            self._homography_failures += 1
             cam = np.median(flow.reshape(-1, 2), axis=0)
-            return flow, np.broadcast_to(cam.astype(np.float32), flow.shape).copy()
+            return flow, np.broadcast_to(cam.astype(np.float32), flow.shape).copy(), True
         den = H[2, 0] * gx + H[2, 1] * gy + H[2, 2]
         px = (H[0, 0] * gx + H[0, 1] * gy + H[0, 2]) / den - gx
         py = (H[1, 0] * gx + H[1, 1] * gy + H[1, 2]) / den - gy
-        return flow, np.stack([px, py], axis=-1).astype(np.float32)
+        return flow, np.stack([px, py], axis=-1).astype(np.float32), False
 
     def residual(self, prev: np.ndarray, cur: np.ndarray, disparity: np.ndarray | None = None) -> np.ndarray:
         """Independent-motion magnitude (h, w) float32, px/frame of these grey frames:
@@ -150,29 +156,57 @@ class ActionDetector(FocusDetector):
         flow, cam = self.camera_flow(prev, cur, disparity)
         return np.hypot(flow[..., 0] - cam[..., 0], flow[..., 1] - cam[..., 1]).astype(np.float32)
 
-    def process(self, t: int, frame: AnalysisFrame) -> None:
+    measures = True
+
+    def _small(self, gray: np.ndarray) -> np.ndarray:
+        """A grey frame at the flow width (INTER_AREA)."""
         import cv2
 
-        start = time.perf_counter()
-        h, w = frame.gray.shape
+        h, w = gray.shape
         fw = min(self.flow_width, w)
-        fh = max(int(round(h * fw / w)), 8)
-        small = cv2.resize(frame.gray, (fw, fh), interpolation=cv2.INTER_AREA)
-        if self._prev is not None and self._prev.shape == small.shape:
-            disp = None
-            if frame.disparity is not None and self.use_disparity:
-                disp = cv2.resize(frame.disparity, (fw, fh), interpolation=cv2.INTER_AREA)
-            res = self.residual(self._prev, small, disp) * (320.0 / fw)  # px/frame at 320 px width
-            b = max(2, int(round(self.border_frac * fw)))  # flow is unreliable at the frame border
-            res[:b], res[-b:], res[:, :b], res[:, -b:] = 0, 0, 0, 0
-            res = cv2.GaussianBlur(res, (0, 0), 1.0)
+        return cv2.resize(gray, (fw, max(int(round(h * fw / w)), 8)), interpolation=cv2.INTER_AREA)
+
+    def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list) -> tuple[np.ndarray, bool] | None:
+        """(independent-motion residual from ``prev`` to ``frame``, (fh, fw) float32 px/frame at a
+        320 px width, border zeroed, smoothed; homography failed), None at the first frame."""
+        import cv2
+
+        small = self._small(frame.gray)
+        if prev is None:
+            return None
+        before = self._small(prev.gray)
+        if before.shape != small.shape:
+            return None
+        fh, fw = small.shape
+        disp = None
+        if frame.disparity is not None and self.use_disparity:
+            disp = cv2.resize(frame.disparity, (fw, fh), interpolation=cv2.INTER_AREA)
+        flow, cam, failed = self.camera_motion(before, small, disp)
+        res = np.hypot(flow[..., 0] - cam[..., 0], flow[..., 1] - cam[..., 1]).astype(np.float32) * (320.0 / fw)
+        b = max(2, int(round(self.border_frac * fw)))  # flow is unreliable at the frame border
+        res[:b], res[-b:], res[:, :b], res[:, -b:] = 0, 0, 0, 0
+        return cv2.GaussianBlur(res, (0, 0), 1.0), failed
+
+    def process(self, t: int, frame: AnalysisFrame) -> None:
+        start = time.perf_counter()
+        measured = self.measure(frame, self._prev, [])
+        self._seconds += time.perf_counter() - start
+        self.ingest(t, frame, measured)
+
+    def ingest(self, t: int, frame: AnalysisFrame, measured: tuple[np.ndarray, bool] | None) -> None:
+        """Fold the residual into the decaying motion memory; heat at the analysis size."""
+        import cv2
+
+        h, w = frame.gray.shape
+        if measured is not None:
+            res, failed = measured
+            self._homography_failures += int(failed)
             self._acc = res if self._acc is None else np.maximum(res, self.decay * self._acc)
             heat = np.clip(0.5 * self._acc / self.threshold_px, 0.0, 1.0)
             self._heat = {t: cv2.resize(heat, (w, h), interpolation=cv2.INTER_LINEAR)}
         else:
             self._heat = {t: np.zeros((h, w), np.float32)}
-        self._prev = small
-        self._seconds += time.perf_counter() - start
+        self._prev = frame
         self._n += 1
 
     def output(self, t: int) -> DetectorOutput:

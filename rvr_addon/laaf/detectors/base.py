@@ -5,6 +5,14 @@ A detector turns frames into a per-frame heat map at the analysis resolution: fl
 binary regions). The driver calls ``process(t, frame)`` for t = 0, 1, 2, ... in order, then
 ``output(t)`` once frames up to ``t + lookahead_frames`` have been processed (or after
 ``flush()`` at the end of the clip). A detector keeps only the state it needs.
+
+Detectors with ``measures = True`` split ``process`` in two, so that the expensive part can
+run on chunks of a clip in other processes (``laaf.analysis``, ``rvr batch``):
+``measure(frame, prev, faces)`` is the per-frame work (face detection, saliency, optical
+flow, mouth and block motion), a pure function of this frame, the previous one and the face
+boxes of the last face detection; ``ingest(t, frame, measured)`` is the cheap part that
+carries state from frame to frame (face tracks, decaying motion memory, speech windows) and
+runs in frame order in one process. ``process(t, frame)`` is ``ingest(measure(...))``.
 """
 from __future__ import annotations
 
@@ -51,6 +59,22 @@ class FocusDetector:
     lookahead_frames: int = 0
     available: bool = True
     unavailable_reason: str = ""
+    measures: bool = False  # True: measure() + ingest() (module docstring); False: process() only
+
+    def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list[Box]) -> object:
+        """The per-frame work on ``frame``: a pure function of it, the previous frame of the run
+        (None at its first frame) and ``faces`` (the boxes, analysis px, largest first, of the
+        last face detection at or before this frame). Only when ``measures``."""
+        raise NotImplementedError(f"detector {self.name} has no separate per-frame measurement")
+
+    def ingest(self, t: int, frame: AnalysisFrame, measured: object) -> None:
+        """Take frame t and what :meth:`measure` returned for it (frames in order). Detectors
+        without ``measures`` do all their work here."""
+        self.process(t, frame)
+
+    def add_seconds(self, seconds: float) -> None:
+        """Count time spent measuring this detector's frames (possibly in another process)."""
+        self._seconds = getattr(self, "_seconds", 0.0) + seconds
 
     def process(self, t: int, frame: AnalysisFrame) -> None:  # pragma: no cover - interface
         """Ingest frame t (frames arrive in order)."""

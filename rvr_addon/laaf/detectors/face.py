@@ -138,12 +138,31 @@ class FaceDetector(FocusDetector):
         self._tracks = {k: v for k, v in self._tracks.items() if t - v[1] <= limit}
         return out
 
+    measures = True
+
+    def detect(self, frame: AnalysisFrame) -> list[Box]:
+        """Face boxes (analysis px) of one frame, largest first (the order tracks are matched in)."""
+        return sorted(self.backend.detect(frame.gray), key=lambda b: -b[2] * b[3])
+
+    def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list[Box]) -> list[Box] | None:
+        """The frame's face boxes on detection frames (t a multiple of ``every``), else None."""
+        return self.detect(frame) if frame.t % self.every == 0 else None
+
     def process(self, t: int, frame: AnalysisFrame) -> None:
+        start = time.perf_counter()
+        boxes = self.measure(frame, None, [])
+        self._seconds += time.perf_counter() - start
+        self.ingest(t, frame, boxes)
+
+    def ingest(self, t: int, frame: AnalysisFrame, boxes: list[Box] | None) -> None:
+        """Link the boxes of a detection frame into face tracks, or hold the last frame's faces.
+        (The first frame ingested is always a detection frame: detected here if not measured.)"""
         self._shape = frame.gray.shape
-        if t % self.every == 0 or not self._at:
+        if boxes is None and not self._at:
             start = time.perf_counter()
-            boxes = self.backend.detect(frame.gray)
+            boxes = self.detect(frame)
             self._seconds += time.perf_counter() - start
+        if boxes is not None:
             self._detections += 1
             faces = self._associate(boxes, t, frame.fps)
         else:

@@ -61,10 +61,20 @@ class SaliencyDetector(FocusDetector):
         thr = float(sal.mean() + self.k_std * sal.std())
         return np.clip(0.5 * sal / max(thr, 1e-6), 0.0, 1.0)
 
+    measures = True
+
+    def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list) -> np.ndarray:
+        """The frame's heat map (``compute``)."""
+        return self.compute(frame.rgb)
+
     def process(self, t: int, frame: AnalysisFrame) -> None:
         start = time.perf_counter()
-        self._heat = {t: self.compute(frame.rgb)}
+        heat = self.measure(frame, None, [])
         self._seconds += time.perf_counter() - start
+        self.ingest(t, frame, heat)
+
+    def ingest(self, t: int, frame: AnalysisFrame, heat: np.ndarray) -> None:
+        self._heat = {t: heat}
         self._n += 1
 
     def output(self, t: int) -> DetectorOutput:

@@ -96,6 +96,16 @@ def _mean_in(img: np.ndarray, box: Box) -> float:
     return float(img[y0:y1, x0:x1].mean()) if x1 > x0 and y1 > y0 else float("nan")
 
 
+def _mouth_cues(diff: np.ndarray, gray: np.ndarray, face: Box) -> tuple[float, float] | None:
+    """(mouth motion minus upper-face motion, clipped at 0; upper-face minus mouth intensity) of
+    one face box, from the motion-compensated frame difference ``diff`` and the grey frame; None
+    where a region falls outside the frame."""
+    m = _mean_in(diff, mouth_box(face)) - _mean_in(diff, upper_box(face))
+    cur = gray.astype(np.float32)
+    dark = _mean_in(cur, upper_box(face)) - _mean_in(cur, mouth_box(face))
+    return (max(m, 0.0), dark) if np.isfinite(m) and np.isfinite(dark) else None
+
+
 class SpeechDetector(FocusDetector):
     """H_aud (module docstring).
 
@@ -138,7 +148,7 @@ class SpeechDetector(FocusDetector):
                 self.unavailable_reason = f"speech detector off: {ex}"
                 if media is not None:
                     log.warning("%s; the preset falls back to the other detectors", self.unavailable_reason)
-        self._prev: np.ndarray | None = None
+        self._prev: AnalysisFrame | None = None  # the frame before (process only)
         self._mouth: dict[str, dict[int, float]] = {}
         self._shape: tuple[int, int] = (0, 0)
         self._last = -1
@@ -148,30 +158,54 @@ class SpeechDetector(FocusDetector):
         self._sync_frames = 0
 
     # -- ingest -----------------------------------------------------------------------------
+    measures = True
+
+    def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list[Box]) -> tuple | None:
+        """(mouth cues, block energy) of ``frame`` against ``prev``: mouth cues are, per box of
+        ``faces`` (in order), (mouth motion minus upper-face motion clipped at 0, upper-face minus
+        mouth intensity) or None where a region is empty, or None at the first frame; block
+        energy is the synchrony localiser's (None without it or at the first frame)."""
+        cur = frame.gray
+        mouths = None
+        if prev is not None and prev.gray.shape == cur.shape:
+            diff = np.abs(cur.astype(np.float32) - align_previous(prev.gray, cur))
+            mouths = [_mouth_cues(diff, cur, box) for box in faces]
+        energy = None
+        if self.synchrony is not None:
+            energy = self.synchrony.measure(prev.gray if prev is not None else None, cur, frame.disparity)
+        return mouths, energy
+
     def process(self, t: int, frame: AnalysisFrame) -> None:
         if not self.available:
             return
         start = time.perf_counter()
-        cur = frame.gray
-        self._shape = cur.shape
-        if self._prev is not None and self._prev.shape == cur.shape:
-            diff = np.abs(cur.astype(np.float32) - align_previous(self._prev, cur))
-            for box, _, tid in self.faces.faces_at(t):
-                if tid is None:
-                    continue
-                m = _mean_in(diff, mouth_box(box)) - _mean_in(diff, upper_box(box))
-                dark = _mean_in(cur.astype(np.float32), upper_box(box)) - _mean_in(cur.astype(np.float32), mouth_box(box))
-                if np.isfinite(m) and np.isfinite(dark):
-                    self._mouth.setdefault(tid, {})[t] = (max(m, 0.0), dark)
+        measured = self.measure(frame, self._prev, [b for b, _, _ in self.faces.faces_at(t)])
+        self._seconds += time.perf_counter() - start
+        self.ingest(t, frame, measured)
+
+    def ingest(self, t: int, frame: AnalysisFrame, measured: tuple | None) -> None:
+        """Record the mouth cues under the face tracks of frame t (``faces.faces_at(t)``, the
+        boxes they were measured in) and the block energy."""
+        if not self.available:
+            return
+        mouths, energy = measured
+        self._shape = frame.gray.shape
+        if mouths is not None:
+            faces = self.faces.faces_at(t)
+            if len(faces) != len(mouths):
+                raise RuntimeError(f"speech detector: {len(mouths)} mouth readings for the {len(faces)} faces of "
+                                   f"frame {t}; the frame was measured with other face boxes")
+            for (_, _, tid), cues in zip(faces, mouths):
+                if tid is not None and cues is not None:
+                    self._mouth.setdefault(tid, {})[t] = cues
         if self.synchrony is not None:
-            self.synchrony.push(t, cur, frame.disparity)
-        self._prev = cur
+            self.synchrony.add(t, frame.gray.shape, energy)
+        self._prev = frame
         self._last = t
         keep = 4 * self.radius + 4
         for series in self._mouth.values():
             for k in [k for k in series if k < t - keep]:
                 del series[k]
-        self._seconds += time.perf_counter() - start
 
     # -- decide -----------------------------------------------------------------------------
     def _window(self, t: int, margin: int = 2) -> tuple[int, int] | None:

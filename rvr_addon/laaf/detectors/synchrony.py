@@ -52,39 +52,60 @@ class SynchronyLocaliser:
         self.keep_frames = keep_frames
         self.sigma_blocks = sigma_blocks
         self.camera = ActionDetector(flow_width=flow_width)
-        self._prev: np.ndarray | None = None
-        self._prev_small: np.ndarray | None = None
+        self._prev: np.ndarray | None = None  # push only
         self._energy: OrderedDict[int, np.ndarray] = OrderedDict()
         self.grid: tuple[int, int] = (0, 0)
         self.shape: tuple[int, int] = (0, 0)
 
-    def push(self, t: int, gray: np.ndarray, disparity: np.ndarray | None = None) -> None:
-        """Ingest frame t (in order): (h, w) uint8 grey and optional disparity of the same size."""
+    def _grid(self, shape: tuple[int, int]) -> tuple[int, int]:
+        """(rows, cols) of the block grid of frames of this (h, w)."""
+        h, w = shape
+        cols = max(4, min(self.blocks, w // 2))
+        return max(3, int(round(h * cols / w))), cols
+
+    def _small(self, gray: np.ndarray) -> np.ndarray:
         import cv2
 
         h, w = gray.shape
-        self.shape = (h, w)
-        cols = max(4, min(self.blocks, w // 2))
-        rows = max(3, int(round(h * cols / w)))
-        self.grid = (rows, cols)
         fw = min(self.camera.flow_width, w)
-        fh = max(int(round(h * fw / w)), 8)
-        small = cv2.resize(gray, (fw, fh), interpolation=cv2.INTER_AREA)
-        if self._prev is not None and self._prev.shape == gray.shape:
-            disp = None
-            if disparity is not None and self.camera.use_disparity:
-                disp = cv2.resize(disparity, (fw, fh), interpolation=cv2.INTER_AREA)
-            _, cam = self.camera.camera_flow(self._prev_small, small, disp)
-            cam = cv2.resize(cam, (w, h), interpolation=cv2.INTER_LINEAR) * (w / fw)
-            gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
-            back = cv2.remap(gray, gx + cam[..., 0], gy + cam[..., 1], cv2.INTER_LINEAR,
-                             borderMode=cv2.BORDER_REPLICATE)
-            energy = np.abs(back.astype(np.float32) - self._prev.astype(np.float32))
-            energy = np.maximum(energy - float(np.median(energy)), 0.0)
-            self._energy[t] = cv2.resize(energy, (cols, rows), interpolation=cv2.INTER_AREA)
+        return cv2.resize(gray, (fw, max(int(round(h * fw / w)), 8)), interpolation=cv2.INTER_AREA)
+
+    def measure(self, prev: np.ndarray | None, gray: np.ndarray,
+                disparity: np.ndarray | None = None) -> np.ndarray | None:
+        """Block motion energy (rows, cols) float32 of (h, w) uint8 grey ``gray`` against the frame
+        before (``prev``; None at the first frame: None), the camera's motion removed."""
+        import cv2
+
+        if prev is None or prev.shape != gray.shape:
+            return None
+        h, w = gray.shape
+        rows, cols = self._grid(gray.shape)
+        small = self._small(gray)
+        fh, fw = small.shape
+        disp = None
+        if disparity is not None and self.camera.use_disparity:
+            disp = cv2.resize(disparity, (fw, fh), interpolation=cv2.INTER_AREA)
+        _, cam, _ = self.camera.camera_motion(self._small(prev), small, disp)
+        cam = cv2.resize(cam, (w, h), interpolation=cv2.INTER_LINEAR) * (w / fw)
+        gy, gx = np.mgrid[0:h, 0:w].astype(np.float32)
+        back = cv2.remap(gray, gx + cam[..., 0], gy + cam[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        energy = np.abs(back.astype(np.float32) - prev.astype(np.float32))
+        energy = np.maximum(energy - float(np.median(energy)), 0.0)
+        return cv2.resize(energy, (cols, rows), interpolation=cv2.INTER_AREA)
+
+    def add(self, t: int, shape: tuple[int, int], energy: np.ndarray | None) -> None:
+        """Keep frame t's block energy (from :meth:`measure`) for frames of this (h, w)."""
+        self.shape = shape
+        self.grid = self._grid(shape)
+        if energy is not None:
+            self._energy[t] = energy
             while len(self._energy) > self.keep_frames:
                 self._energy.popitem(last=False)
-        self._prev, self._prev_small = gray, small
+
+    def push(self, t: int, gray: np.ndarray, disparity: np.ndarray | None = None) -> None:
+        """Ingest frame t (in order): (h, w) uint8 grey and optional disparity of the same size."""
+        self.add(t, gray.shape, self.measure(self._prev, gray, disparity))
+        self._prev = gray
 
     def correlate(self, frames: list[int], feature: np.ndarray) -> tuple[np.ndarray | None, int]:
         """Smoothed positive correlation map (rows, cols) of the block energy over ``frames``

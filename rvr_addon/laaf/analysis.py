@@ -1,0 +1,309 @@
+"""The per-frame part of LAAF, measured apart from the whole-clip decisions (``rvr batch``).
+
+Where LAAF's time goes (``AutofocusJob`` timings, 100 frames of a 720p interview, 320 px
+analysis width, a loaded 2-core machine): conversation preset: detectors 3.4-3.7 s (face
+detection, mouth motion, synchrony flow), tracking 1.8-2.3 s, decode 0.6-0.7 s, combination
+0.4-0.5 s, disparity 0.2 s (an .npy; a 1080p cache EXR costs more); action preset on a
+640x272 clip (80 frames): detectors 1.3 s, combination 1.3 s, tracking 2.1 s, decode 0.3 s.
+
+What is a pure function of frame t and frame t - 1 is *measured* here and can run on chunks
+of a clip in parallel: decoding and shrinking the frame to the analysis size, reading its
+disparity, and each detector's ``measure`` (face detection on detection frames, saliency,
+optical flow and camera motion, motion-compensated mouth and block energy; see
+``detectors.base``). A chunk [a, b) therefore reads from :func:`analysis_start` (frame a - 1,
+and the last face-detection frame before a, whose boxes the speech detector measures mouths
+in). What carries state across frames stays in one task per clip, in frame order
+(``AutofocusJob`` with ``frames=``): face-track association, the action detector's decaying
+memory, the speech and synchrony windows, the combination (its K-means is seeded per frame,
+but it reads the detectors' state), the step detector, KCF tracking of every target from its
+NFT to the next (however far apart: no bounded overlap reproduces it), the pulls. Since both
+paths run the same ``measure`` on the same arrays and the same ``ingest`` in the same order,
+a chunked run gives the single run's focus track and keys exactly (``tests/engine/test_batch.py``).
+
+Measurement files are pickle streams (a header, then one :class:`FrameMeasurement` per frame),
+written to a temporary name and renamed; they are the batch's own work files (never load one
+from an untrusted source). About 0.4-0.7 MB per frame at 320x180 (frame, disparity, maps).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Iterable, Iterator
+
+import numpy as np
+
+from ..errors import InputError
+from ..io.paths import temp_sibling
+from ..io.video import ClipInfo, probe_clip
+from .combine import FALLBACKS, PRESETS
+from .depth import DisparitySource
+from .detectors.base import AnalysisFrame, FocusDetector
+from .nft import Box
+
+if TYPE_CHECKING:
+    from .lookahead import AutofocusSettings
+
+log = logging.getLogger(__name__)
+
+ANALYSIS_FORMAT = "rvr-laaf-analysis/1"
+
+
+@dataclass
+class FrameMeasurement:
+    """One measured frame. t: 0-based index in the run. rgb: (h, w, 3) uint8 at the analysis
+    size. disparity: (h, w) float32 (DESIGN units of the native width). features: what each
+    measuring detector's ``measure`` returned. seconds: time spent (s) per part: ``decode``,
+    ``depth`` and each detector name."""
+
+    t: int
+    rgb: np.ndarray
+    disparity: np.ndarray | None
+    features: dict[str, object]
+    seconds: dict[str, float]
+
+
+@dataclass
+class ClipSetup:
+    """A run's clip: frames [start, stop) of ``clip`` (n of them), at ``fps``; disparity source;
+    analysis scale (analysis px / native px) and size (w, h) px."""
+
+    clip: ClipInfo
+    start: int
+    stop: int
+    fps: float
+    depth: DisparitySource
+    scale: float
+    size: tuple[int, int]
+
+    @property
+    def n(self) -> int:
+        return self.stop - self.start
+
+    def frame(self, rgb: np.ndarray, k: int, with_depth: bool = True) -> tuple[AnalysisFrame, dict[str, float]]:
+        """(analysis frame k of the run, seconds spent: decode = shrinking, depth) from a native
+        frame; with_depth False: no disparity (warm-up frames only need the image)."""
+        t0 = time.perf_counter()
+        small, gray = shrink(rgb, self.size)
+        t1 = time.perf_counter()
+        disp = self.depth.get(self.start + k, self.size) if with_depth else None
+        return AnalysisFrame(k, small, gray, disp, self.scale, self.fps), {"decode": t1 - t0,
+                                                                           "depth": time.perf_counter() - t1}
+
+
+def open_clip(s: "AutofocusSettings") -> ClipSetup:
+    """Probe the clip, check the frame range and the disparity source (InputError naming them)."""
+    clip = probe_clip(s.input, fps=s.fps)
+    stop = clip.frame_count if s.stop is None else min(s.stop, clip.frame_count)
+    if s.start < 0 or s.start >= stop:
+        raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} ({clip.frame_count} frames)")
+    depth = DisparitySource(cache=s.cache, depth=s.depth, scale=s.depth_scale, offset=s.depth_offset)
+    depth.check_length(stop - s.start, s.start)
+    scale = min(1.0, s.analysis_width / clip.width)
+    size = (max(int(round(clip.width * scale)), 8), max(int(round(clip.height * scale)), 8))
+    return ClipSetup(clip, s.start, stop, clip.fps, depth, scale, size)
+
+
+@dataclass
+class DetectorSet:
+    """The detectors of a run. combo: the preset's detectors the combination intersects (after
+    a fallback); preset_used: the preset they belong to; fallback_note: why it fell back."""
+
+    detectors: dict[str, FocusDetector]
+    combo: tuple[str, ...]
+    preset_used: str | None
+    fallback_note: str = ""
+
+
+def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whole_clip: bool = True) -> DetectorSet:
+    """The detectors of preset ``s.preset``. whole_clip False: for measuring chunks only, i.e.
+    without what only the whole-clip task uses (the audio track, AF-Net)."""
+    if s.preset is None:
+        return DetectorSet({}, (), None)
+    names = list(PRESETS[s.preset])
+    detectors: dict[str, FocusDetector] = {}
+    if "afnet" in names and whole_clip:
+        from .detectors.afnet import AFNetDetector
+
+        detectors["afnet"] = AFNetDetector(s.afnet_weights, setup.n, setup.fps, s.afnet_threshold)
+    from .detectors.action import ActionDetector
+    from .detectors.face import FaceDetector
+    from .detectors.saliency import SaliencyDetector
+    from .detectors.speech import SpeechDetector
+
+    face = None
+    if "face" in names or "speech" in names:
+        face = FaceDetector(backend=s.face_backend, every=s.face_every)
+        detectors["face"] = face
+    if "saliency" in names:
+        detectors["saliency"] = SaliencyDetector()
+    if "action" in names:
+        detectors["action"] = ActionDetector()
+    preset_used, note = s.preset, ""
+    if "speech" in names:
+        clip = setup.clip
+        media = clip.path if clip.kind == "video" and clip.has_audio and whole_clip else None
+        speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
+                                window_s=s.speech_window_s, causal=causal)
+        detectors["speech"] = speech
+        if whole_clip and media is None:
+            speech.available = False
+            speech.unavailable_reason = f"speech detector off: '{clip.path}' has no audio track"
+            log.warning("%s; preset %s falls back to %s", speech.unavailable_reason, s.preset, FALLBACKS.get(s.preset))
+        if not speech.available:
+            names.remove("speech")
+            preset_used = FALLBACKS.get(s.preset, s.preset)
+            note = f"{speech.unavailable_reason}; preset {s.preset} fell back to {preset_used}"
+    return DetectorSet(detectors, tuple(names), preset_used, note)
+
+
+def analysis_start(a: int, face_every: int | None) -> int:
+    """First frame a chunk starting at frame a must read: the frame before (pairwise detectors)
+    and, with face detection every ``face_every`` frames, the last detection frame <= a."""
+    if a <= 0:
+        return 0
+    first = a - 1
+    if face_every:
+        first = min(first, a - a % face_every)
+    return max(first, 0)
+
+
+def measured_names(detectors: dict[str, FocusDetector], speech: bool) -> list[str]:
+    """Detectors whose ``measure`` runs, face first (speech measures in its boxes): every
+    available measuring detector; speech when ``speech`` (a chunk knows only whether the clip
+    has an audio track; whether its audio decodes, and so whether speech is available, is known
+    to the whole-clip task)."""
+    names = [n for n, d in detectors.items() if d.measures and (d.available or (n == "speech" and speech))]
+    return sorted(names, key=lambda n: n != "face")
+
+
+class FrameAnalyser:
+    """Measure the frames of a run in order: keeps the previous frame and the face boxes of the
+    last face detection, which the next frames' measurements use."""
+
+    def __init__(self, detectors: dict[str, FocusDetector], names: list[str]) -> None:
+        self.detectors = {n: detectors[n] for n in names}
+        self.prev: AnalysisFrame | None = None
+        self.faces: list[Box] = []
+
+    def measure(self, frame: AnalysisFrame, warm_up: bool = False) -> tuple[dict[str, object], dict[str, float]]:
+        """(features, seconds per detector) of ``frame``, the frame after the last one measured.
+        warm_up: a frame before a chunk, measured only for what the chunk needs (face boxes)."""
+        features: dict[str, object] = {}
+        seconds: dict[str, float] = {}
+        prev = self.prev if self.prev is not None and self.prev.t == frame.t - 1 else None
+        for name, det in self.detectors.items():
+            if warm_up and name != "face":
+                continue
+            t0 = time.perf_counter()
+            features[name] = det.measure(frame, prev, self.faces)
+            seconds[name] = time.perf_counter() - t0
+            if name == "face" and features[name] is not None:
+                self.faces = list(features[name])
+        self.prev = frame
+        return features, seconds
+
+
+def shrink(rgb: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(rgb, gray) of a frame at the analysis size (w, h): INTER_AREA, as the detectors see it."""
+    import cv2
+
+    small = rgb if (rgb.shape[1], rgb.shape[0]) == tuple(size) else cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
+    return small, cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+
+
+# ------------------------------------------------------------------------------ chunks
+
+
+def measure_range(s: "AutofocusSettings", a: int, b: int) -> Iterator[FrameMeasurement]:
+    """Frames a..b-1 of the run ``s`` describes (0-based from ``s.start``), measured as
+    ``AutofocusJob`` measures them, one at a time; reads from :func:`analysis_start`. Raises
+    InputError naming the clip when the range is out of the clip or the clip ends early."""
+    from ..io.video import iter_frames
+
+    setup = open_clip(s)
+    if not 0 <= a < b <= setup.n:
+        raise InputError(f"analysis chunk {a}..{b - 1} is outside the {setup.n} frames of the run on {s.input}")
+    causal = s.causal or int(round(s.window_s * setup.fps)) == 0
+    dets = build_detectors(s, setup, causal, whole_clip=False).detectors
+    clip = setup.clip
+    names = measured_names(dets, speech=clip.kind == "video" and clip.has_audio)
+    analyser = FrameAnalyser(dets, names)
+    lo = analysis_start(a, s.face_every if "face" in names else None)
+    frames = iter_frames(s.input, start=setup.start + lo, stop=setup.start + b)
+    try:
+        for k in range(lo, b):
+            t0 = time.perf_counter()
+            rgb = next(frames, None)
+            read = time.perf_counter() - t0
+            if rgb is None:
+                raise InputError(f"{s.input} ended after {k} of {setup.n} frames while measuring frames {a}..{b - 1}")
+            check_frame_size(rgb, clip, k, s.input)
+            af, seconds = setup.frame(rgb, k, with_depth=k >= a)
+            features, det_seconds = analyser.measure(af, warm_up=k < a)
+            if k >= a:
+                seconds["decode"] += read
+                yield FrameMeasurement(k, af.rgb, af.disparity, features, {**seconds, **det_seconds})
+    finally:
+        frames.close()
+
+
+def check_frame_size(rgb: np.ndarray, clip: ClipInfo, k: int, source) -> None:
+    """InputError when frame k is not the clip's size."""
+    if (rgb.shape[1], rgb.shape[0]) != (clip.width, clip.height):
+        raise InputError(f"frame {k} of {source} has another size than the first frame")
+
+
+# ------------------------------------------------------------------------------ files
+
+
+def write_measurements(path: Path, header: dict, frames: Iterable[FrameMeasurement]) -> int:
+    """Stream ``frames`` into a measurement file (temp name, renamed when complete); returns
+    how many were written."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_sibling(path, ".tmp")
+    count = 0
+    try:
+        with open(tmp, "wb") as f:
+            pickle.dump({"format": ANALYSIS_FORMAT, **header}, f, protocol=pickle.HIGHEST_PROTOCOL)
+            for m in frames:
+                pickle.dump(m, f, protocol=pickle.HIGHEST_PROTOCOL)
+                count += 1
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return count
+
+
+def read_header(path: Path) -> dict | None:
+    """The header of a measurement file, None if it is missing or not one."""
+    try:
+        with open(path, "rb") as f:
+            header = pickle.load(f)
+    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ValueError):
+        return None
+    return header if isinstance(header, dict) and header.get("format") == ANALYSIS_FORMAT else None
+
+
+def read_measurements(paths: Iterable[Path]) -> Iterator[FrameMeasurement]:
+    """The frames of measurement files, file after file (one frame in memory at a time).
+    Raises InputError naming a file that is not a complete measurement file."""
+    for path in paths:
+        header = read_header(path)
+        if header is None:
+            raise InputError(f"LAAF measurement file '{path}' is missing or not one ({ANALYSIS_FORMAT}); delete it "
+                             "and re-run (rvr batch measures missing chunks again)")
+        a, b = header["range"]
+        with open(path, "rb") as f:
+            pickle.load(f)
+            for t in range(a, b):
+                try:
+                    m = pickle.load(f)
+                except (EOFError, pickle.UnpicklingError) as ex:
+                    raise InputError(f"LAAF measurement file '{path}' ends before frame {t} of {a}..{b - 1} "
+                                     f"({ex or 'truncated'}); delete it and re-run the analysis") from None
+                yield m
