@@ -23,6 +23,7 @@ import logging
 import math
 import os
 import re
+import stat
 import subprocess
 import tempfile
 from dataclasses import dataclass
@@ -62,10 +63,32 @@ class ClipInfo:
 
 
 def ffmpeg_exe() -> str:
-    """Path of the ffmpeg binary bundled with imageio-ffmpeg."""
+    """Path of the ffmpeg binary bundled with imageio-ffmpeg (made executable first: Blender's
+    extension installer unpacks wheels without the execute bit)."""
     import imageio_ffmpeg
 
-    return imageio_ffmpeg.get_ffmpeg_exe()
+    restore_execute_bit(Path(imageio_ffmpeg.__file__).parent / "binaries")
+    try:
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except RuntimeError as ex:
+        raise InputError(f"no usable ffmpeg ({ex}); reinstall imageio-ffmpeg (or the extension), or set "
+                         "IMAGEIO_FFMPEG_EXE to an ffmpeg executable") from ex
+
+
+def restore_execute_bit(folder: Path) -> list[Path]:
+    """Add the execute bits (as far as read is allowed) to the ``ffmpeg*`` files in ``folder``
+    that lack them; returns the files changed. A read-only install is left as it is."""
+    changed = []
+    for exe in sorted(folder.glob("ffmpeg*")) if folder.is_dir() else []:
+        mode = exe.stat().st_mode
+        if not exe.is_file() or mode & stat.S_IXUSR:
+            continue
+        try:
+            exe.chmod(mode | ((mode & 0o444) >> 2))  # r -> x for user, group, other
+        except OSError:
+            continue
+        changed.append(exe)
+    return changed
 
 
 def _resolve(path: str | Path) -> tuple[str, Path, list[Path]]:

@@ -348,3 +348,22 @@ def test_a_listing_prefix_decides_only_what_later_packets_cannot_change():
                 assert seek_point(prefix, start) == seek_point(full, start), (length, start)
     assert decided == {1: 102, 5: 102, 60: 102}  # the keyframe after I0 decides the seek target
     assert seek_point(full, 100)[0] < 0.2 <= 1.01 <= seek_point(full, 101)[0]  # P100 follows I0 in decode order
+
+
+def test_bundled_ffmpeg_gets_its_execute_bit_back(tmp_path):
+    """Blender's extension installer unpacks wheels without the execute bit (imageio-ffmpeg's
+    binary then counts as missing); ffmpeg_exe() restores it."""
+    import stat
+
+    from rvr_addon.io.video import restore_execute_bit
+
+    exe = tmp_path / "ffmpeg-linux-x86_64-v7.0.2"
+    exe.write_bytes(b"#!/bin/sh\n")
+    exe.chmod(0o644)
+    other = tmp_path / "README.md"
+    other.write_text("x")
+    other.chmod(0o644)
+    assert restore_execute_bit(tmp_path) == [exe]
+    assert stat.S_IMODE(exe.stat().st_mode) == 0o755 and stat.S_IMODE(other.stat().st_mode) == 0o644
+    assert restore_execute_bit(tmp_path) == []  # already executable: untouched
+    assert restore_execute_bit(tmp_path / "missing") == []
