@@ -99,6 +99,9 @@ def check_report_target(report: Path, force: bool) -> None:
 # ----------------------------------------------------------------------------------------
 # Running
 
+REFERENCE_VARIANT = "ours_gt"
+"""The variant rendered from the exact inputs: the reference of ``flicker_exact``."""
+
 
 def _open_clips(ab: Ablation) -> list[tuple[ClipReader, list[str]]]:
     """Readers of the complete clips and their tracks; the others go to ``ab.skipped``."""
@@ -123,8 +126,14 @@ def _open_clips(ab: Ablation) -> list[tuple[ClipReader, list[str]]]:
 
 
 def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path, settings: ScoreSettings,
-                max_frames: int | None = None, progress: Any = None) -> RunResult:
+                max_frames: int | None = None, progress: Any = None,
+                reference: dict[int, np.ndarray] | None = None, keep: dict[int, np.ndarray] | None = None
+                ) -> RunResult:
     """Render ``track`` of a clip with one variant, score every frame, keep 8-bit outputs.
+
+    reference: linear renders from the exact inputs by frame number (``ours_gt``'s outputs),
+    scored as ``flicker_exact``. keep: this run *is* that reference: its outputs are stored
+    there (and it scores ``flicker_exact`` 0 against itself).
 
     Raises InputError (naming the file) when a dataset file cannot be read.
     """
@@ -139,7 +148,10 @@ def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path,
         if out.shape != gt.dof_linear.shape or not np.all(np.isfinite(out)):
             raise RuntimeError(f"variant {variant.name} returned an invalid frame {gt.frame} of "
                                f"{reader.name}/{track}: shape {out.shape}, finite={bool(np.all(np.isfinite(out)))}")
-        scorer.add(gt.frame, out, gt.dof_linear, inputs.disparity, gt.disparity, gt.focus, gt.aperture)
+        ref = out if keep is not None else (reference.get(gt.frame) if reference else None)
+        scorer.add(gt.frame, out, gt.dof_linear, inputs.disparity, gt.disparity, gt.focus, gt.aperture, ref)
+        if keep is not None:
+            keep[gt.frame] = out
         png = outputs / f"frame_{gt.frame:05d}.png"
         if not cv2.imwrite(str(png), to_uint8(display_srgb(out))[:, :, ::-1]):
             raise OutputError(f"Cannot write '{png}'; check free space and permissions.")
@@ -197,10 +209,13 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
                 clip_runs: list[RunResult] = []
                 try:
                     for track in tracks:
+                        exact: dict[int, np.ndarray] = {}  # ours_gt's renders (first in table order)
                         for variant in ab.variants:
                             bar.set_description(f"{reader.name}/{track}/{variant.name}")
                             out_dir = tmp / "_frames" / reader.name / track / variant.name
-                            clip_runs.append(run_variant(reader, track, variant, out_dir, ab.settings, max_frames, bar))
+                            is_ref = variant.name == REFERENCE_VARIANT
+                            clip_runs.append(run_variant(reader, track, variant, out_dir, ab.settings, max_frames, bar,
+                                                         reference=exact or None, keep=exact if is_ref else None))
                 except InputError as ex:
                     log.warning("skipping clip %s: %s", reader.name, ex)
                     ab.skipped.append((reader.name, str(ex)))

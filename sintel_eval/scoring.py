@@ -11,6 +11,10 @@ images, for flicker) and pools the per-frame pieces of :mod:`.metrics` into clip
 - ``splotchiness_px``: within-frame standard deviation of the blur-size error in flat
   regions, pooled over frames (px of blur radius);
 - ``flicker``: mean over consecutive frame pairs (sRGB, fraction of full scale);
+- ``flicker_exact``: the same against a reference render of our renderer from the exact
+  (ground-truth) disparity and HDR instead of Cycles' image, when the caller gives one: the
+  flicker the inputs cause (what a temporal filter of D and E can remove), without the
+  renderer-vs-Cycles differences that every variant shares;
 - ``bokeh_recall``: found / total highlight energy pooled over frames (0..1).
 
 A figure with nothing to measure (no edge in the clip, no highlight, a single frame for
@@ -27,14 +31,14 @@ from . import metrics as m
 
 METRICS: tuple[str, ...] = (
     "psnr_srgb_db", "psnr_linear_db", "ssim_srgb", "ssim_linear", "edge_band_psnr_srgb_db",
-    "edge_band_psnr_linear_db", "splotchiness_px", "flicker", "bokeh_recall",
+    "edge_band_psnr_linear_db", "splotchiness_px", "flicker", "flicker_exact", "bokeh_recall",
 )
 """Names of the figures of a run, in report order."""
 
 HIGHER_IS_BETTER: dict[str, bool] = {
     "psnr_srgb_db": True, "psnr_linear_db": True, "ssim_srgb": True, "ssim_linear": True,
     "edge_band_psnr_srgb_db": True, "edge_band_psnr_linear_db": True, "splotchiness_px": False,
-    "flicker": False, "bokeh_recall": True,
+    "flicker": False, "flicker_exact": False, "bokeh_recall": True,
 }
 
 
@@ -69,6 +73,7 @@ class FrameScore:
     ssim_linear: float
     edge_band_psnr_srgb_db: float
     flicker: float
+    flicker_exact: float
     bokeh_recall: float
 
 
@@ -88,15 +93,20 @@ class RunScorer:
     _splotch: list[float] = field(default_factory=lambda: [0.0, 0.0])
     _bokeh: list[float] = field(default_factory=lambda: [0.0, 0.0])
     _flicker: list[float] = field(default_factory=list)
+    _flicker_exact: list[float] = field(default_factory=list)
     _prev: tuple[np.ndarray, np.ndarray] | None = None
+    _prev_ref: np.ndarray | None = None
     _band_px: int = 0
     _px: int = 0
 
     def add(self, frame: int, out_linear: np.ndarray, gt_linear: np.ndarray, disparity_used: np.ndarray,
-            disparity_gt: np.ndarray, focus: float, aperture: float) -> FrameScore:
+            disparity_gt: np.ndarray, focus: float, aperture: float,
+            ref_linear: np.ndarray | None = None) -> FrameScore:
         """Score one frame.
 
         out_linear / gt_linear: (H, W, 3) linear radiance of the variant and of the ground truth.
+        ref_linear: optional (H, W, 3) render of the same frame from the exact inputs (for
+        ``flicker_exact``; give it for every frame of the run or for none).
         disparity_used / disparity_gt: (H, W) DESIGN units, what the variant rendered with and
         the truth. focus, aperture: the frame's focus disparity and aperture scale.
         """
@@ -128,7 +138,13 @@ class RunScorer:
         if self._prev is not None:
             fl = m.flicker(self._prev[0], out_s, self._prev[1], gt_s)
             self._flicker.append(fl)
+        fl_exact = float("nan")
+        ref_s = m.display_srgb(ref_linear) if ref_linear is not None else None
+        if ref_s is not None and self._prev is not None and self._prev_ref is not None:
+            fl_exact = m.flicker(self._prev[0], out_s, self._prev_ref, ref_s)
+            self._flicker_exact.append(fl_exact)
         self._prev = (out_s, gt_s)
+        self._prev_ref = ref_s
 
         band_sse, band_n = pieces["band_srgb"]
         score = FrameScore(
@@ -137,7 +153,7 @@ class RunScorer:
             psnr_linear_db=m.psnr_from_mse(_ratio(*pieces["lin"])),
             ssim_srgb=ssim_s, ssim_linear=ssim_l,
             edge_band_psnr_srgb_db=m.psnr_from_mse(_ratio(band_sse, band_n)),
-            flicker=fl, bokeh_recall=_ratio(found, total),
+            flicker=fl, flicker_exact=fl_exact, bokeh_recall=_ratio(found, total),
         )
         self.frames.append(score)
         return score
@@ -157,6 +173,7 @@ class RunScorer:
             "edge_band_psnr_linear_db": pooled_psnr("band_lin"),
             "splotchiness_px": math.sqrt(self._splotch[0] / self._splotch[1]) if self._splotch[1] else float("nan"),
             "flicker": float(np.mean(self._flicker)) if self._flicker else float("nan"),
+            "flicker_exact": float(np.mean(self._flicker_exact)) if self._flicker_exact else float("nan"),
             "bokeh_recall": _ratio(self._bokeh[0], self._bokeh[1]),
             "frames": float(len(self.frames)),
             "edge_band_fraction": _ratio(self._band_px, self._px),

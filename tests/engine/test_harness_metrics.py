@@ -238,6 +238,23 @@ def test_run_scorer_perfect_output():
     assert res["ssim_srgb"] == pytest.approx(1.0) and res["flicker"] == 0.0 and res["bokeh_recall"] == 1.0
 
 
+def test_flicker_exact_scores_against_the_exact_input_render():
+    """flicker_exact compares frame-to-frame changes with the reference render's, not Cycles':
+    the reference itself does not flicker against itself, an alternating offset does."""
+    frames = list(_frames(4))
+    steady, jumpy, without = RunScorer(), RunScorer(), RunScorer()
+    for i, (out, gt, d) in enumerate(frames):
+        ref = gt * 0.8  # the renderer's own picture of the exact inputs differs from Cycles'
+        steady.add(i + 1, ref, gt, d, d, 0.0, 1.0, ref)
+        jumpy.add(i + 1, ref + 0.02 * (i % 2), gt, d, d, 0.0, 1.0, ref)
+        without.add(i + 1, ref, gt, d, d, 0.0, 1.0)
+    assert steady.result()["flicker_exact"] == 0.0
+    assert steady.result()["flicker"] > 0.001  # against Cycles the same output flickers
+    assert jumpy.result()["flicker_exact"] > 0.005
+    assert math.isnan(jumpy.frames[0].flicker_exact)
+    assert math.isnan(without.result()["flicker_exact"])
+
+
 def test_aggregate_skips_nan_and_sums_frames():
     got = aggregate([{"psnr_srgb_db": 30.0, "bokeh_recall": float("nan"), "frames": 4.0},
                      {"psnr_srgb_db": 40.0, "bokeh_recall": 0.5, "frames": 6.0}])
