@@ -194,6 +194,7 @@ class TrainingRun:
             self._restore(checkpoint)
         self._started = time.perf_counter()
         self._cancelled = False
+        self._finished = False
         self.last: dict[str, float] = {}
         self._log_file = None
         self._open_log()
@@ -325,6 +326,7 @@ class TrainingRun:
 
     def finish(self) -> None:
         """Final checkpoint, plot and exported weights."""
+        self._finished = True
         self.save_checkpoint()
         self.plot()
         self.export(self.run_dir / self.weights_name)
@@ -354,7 +356,9 @@ class TrainingRun:
                 bar.update(1)
                 if self.iteration % 10 == 0:
                     bar.set_postfix(loss=f"{self.last.get('total', 0):.4f}", refresh=False)
-            bar.update(s.iterations - bar.n)
+            if not self._cancelled and not self._finished:  # resumed at (or past) its count: export it now
+                self.finish()
+            bar.update(max(0, s.iterations - bar.n))
         except KeyboardInterrupt:
             self.cancel()
             raise

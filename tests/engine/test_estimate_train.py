@@ -233,3 +233,17 @@ def test_grow_state_dict_refuses_other_changes():
         grow_state_dict(state, old, EstimatorConfig(widths=(8, 16, 32), row_prior=True))
     with pytest.raises(ValueError, match="row_prior"):
         grow_state_dict(state, EstimatorConfig(widths=(8, 16, 24), row_prior=True), old)
+
+
+def test_resume_at_its_count_exports_the_weights(tmp_path, tiny_dataset):
+    """A run stopped by a signal after its last checkpoint (no weights file) is exported by
+    resuming it with the iteration count it already has."""
+    from rvr_addon.cli import main
+
+    run = tmp_path / "run"
+    args = ["train", "--data", str(tiny_dataset), "-o", str(run), "--crop", "32", "-q", "--iterations", "4"]
+    assert main(args + ["--checkpoint-every", "2"]) == 0
+    (run / "estimator.pt").unlink()
+    assert main(args + ["--resume"]) == 0
+    assert json.loads((run / "estimator.json").read_text())["iterations"] == 4
+    assert load_estimator(run / "estimator.pt").header["iterations"] == 4
