@@ -6,8 +6,9 @@
 Input: ``--clips`` clips of ``--frames`` frames at ``--size``, cut from consecutive stretches
 of ``../shared/data/clips/visualvoice_interview.mp4`` (a TV interview: faces, speech; 25 fps)
 with their audio; without ../shared/data, ffmpeg's testsrc2 pattern with a tone. Weights:
-``--weights``, else an UNTRAINED estimator of the shipped architecture exported to a temp
-folder (no trained weights exist yet; inference costs the same). For each worker count a
+``--weights``, else the shipped estimator (``rvr_addon/estimate/weights/estimator.pt``: its header
+runs the trunk at 320x180 and slices D at full size, which is what a batch costs); without it
+an untrained network of the same architecture at full size (``batch.untrained_weights`` = 1). For each worker count a
 fresh LocalCluster (processes, 1 thread each, torch/OpenCV 1 thread per task) runs the whole
 batch (estimate, stabilize, autofocus with the conversation preset, render, MP4 encode) into
 a fresh output folder, so nothing is reused. ``batch.workersN.fps`` = frames of all clips /
@@ -106,7 +107,7 @@ def main() -> int:
     ap.add_argument("--size", default="640x360", help="WxH of the clips (default 640x360)")
     ap.add_argument("--chunk-frames", type=int, default=24)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--weights", type=Path, help="estimator weights (default: an untrained export)")
+    ap.add_argument("--weights", type=Path, help="estimator weights (default: the shipped file, else untrained)")
     ap.add_argument("--clip", type=Path, default=CLIP, help="source video the clips are cut from")
     ap.add_argument("--quick", action="store_true", help="2 clips of 12 frames at 160x90 (checks the plumbing)")
     args = ap.parse_args()
@@ -128,6 +129,10 @@ def main() -> int:
         tmp = Path(tmp)
         clips = make_clips(args.clip, args.clips, args.frames, size, tmp / "clips")
         weights = args.weights
+        shipped = ROOT / "rvr_addon" / "estimate" / "weights" / "estimator.pt"
+        if weights is None and shipped.is_file():
+            weights = shipped
+        out["batch.untrained_weights"] = float(weights is None)
         if weights is None:
             import torch
 
