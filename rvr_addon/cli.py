@@ -245,6 +245,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     sup = (args.supervised_weight, args.w_disparity, args.w_disparity_grad, args.w_exponent, args.w_exponent_zero)
     if min(sup) < 0:
         raise RvrError(f"--supervised-weight and the --w-* weights must be >= 0, got {sup}")
+    if args.resume and args.init_from is not None:
+        raise RvrError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
     set_torch_threads(args.threads)
     weights = LossWeights(smooth=args.w_smooth, supervised=args.supervised_weight, sup_disparity=args.w_disparity,
                           sup_disparity_grad=args.w_disparity_grad, sup_exponent=args.w_exponent,
@@ -256,8 +258,6 @@ def cmd_train(args: argparse.Namespace) -> int:
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from,
         model=EstimatorConfig(row_prior=args.row_prior))
-    if args.resume and args.init_from is not None:
-        raise RvrError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
     run_training("train", trainer, args.output, args.quiet)

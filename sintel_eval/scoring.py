@@ -139,7 +139,7 @@ class RunScorer:
             fl = m.flicker(self._prev[0], out_s, self._prev[1], gt_s)
             self._flicker.append(fl)
         fl_exact = float("nan")
-        ref_s = m.display_srgb(ref_linear) if ref_linear is not None else None
+        ref_s = None if ref_linear is None else out_s if ref_linear is out_linear else m.display_srgb(ref_linear)
         if ref_s is not None and self._prev is not None and self._prev_ref is not None:
             fl_exact = m.flicker(self._prev[0], out_s, self._prev_ref, ref_s)
             self._flicker_exact.append(fl_exact)
