@@ -381,3 +381,11 @@ class TrainingRun:
         """Write the shippable weights file (state dict + JSON header) and a .json copy of the header."""
         training = {k: v for k, v in self._run_record().items() if k not in ("model", "parameters", "engine_version")}
         return self._export_weights(path, training)
+
+
+def previous_init_record(run_json: Path) -> dict | None:
+    """The ``init_from`` record of a resumed run (None when it started from scratch or is unknown)."""
+    try:
+        return json.loads(run_json.read_text()).get("init_from")
+    except (OSError, ValueError, AttributeError):
+        return None

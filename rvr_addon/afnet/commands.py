@@ -47,19 +47,27 @@ def add_parser(sub) -> None:
                    help=f"clip frames between sampled frames (default {d.sample_step}, as the paper)")
     p.add_argument("--stride", type=int, default=d.stride,
                    help=f"clip frames between queries at inference (default {d.stride}, as the paper)")
+    p.add_argument("--audio", action="store_true",
+                   help="give the network the clip's sound too (beyond the paper: voice activity, level, onsets and "
+                        "voice register per frame; see rvr_addon/afnet/audio_features.py)")
+    p.add_argument("--init-from", type=Path, metavar="WEIGHTS",
+                   help="start a new run from these AF-Net weights (an afnet.pt); their architecture is kept, "
+                        "with --audio the audio input is added with zero weights")
     add_run_control_args(p, checkpoint_every=250)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_train_afnet)
 
 
 def cmd_train_afnet(args: argparse.Namespace) -> int:
+    from .audio_features import AUDIO_FEATURES
     from .model import AFNetConfig
     from .train import AFNetTrainer, AFNetTrainSettings
 
     try:
         w, h = (int(v) for v in args.size.lower().split("x"))
         config = AFNetConfig(width=w, height=h, rgb=not args.gray, disparity=not args.no_disparity, f_t=args.f_t,
-                             s=args.units, sample_step=args.sample_step, stride=args.stride).check()
+                             s=args.units, sample_step=args.sample_step, stride=args.stride,
+                             audio=AUDIO_FEATURES if args.audio else 0).check()
     except ValueError as ex:
         raise RvrError(f"--size/--f-t/--units/--sample-step/--stride: {ex}") from None
     set_torch_threads(args.threads)
@@ -70,7 +78,7 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
         run_dir=args.output, data=list(args.data), annotations=list(args.annotations), iterations=args.iterations,
         lr=args.lr, batch=args.batch, weak_weight=args.weak_weight, w_map=args.w_map, w_nft=args.w_nft,
         pos_fraction=args.pos_fraction, tolerance=args.tolerance, checkpoint_every=args.checkpoint_every,
-        seed=args.seed, resume=args.resume, model=config)
+        seed=args.seed, resume=args.resume, model=config, init_from=args.init_from)
     trainer = AFNetTrainer(settings, progress=not args.quiet)
     print(f"training AF-Net ({trainer.model.parameter_count()} parameters, receptive field "
           f"{trainer.model.config.span} frames) on {trainer.report.summary()}", file=sys.stderr)

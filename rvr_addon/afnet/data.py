@@ -27,6 +27,13 @@ each of the ``s`` unit centres (a distribution over the map cells: half the box,
 half a Gaussian at the focus point; none where the region is unknown) and the NFT label
 ``max_t exp(-(c - t)^2 / (2 tol^2))`` over the clip's NFTs ``t`` (``tol``: the tolerance
 window in frames). Augmentation: horizontal flip, brightness/contrast jitter of the image.
+
+With an audio input (``AFNetConfig.audio``), a sample also holds the audio numbers of every
+clip frame of its span (:mod:`.audio_features`; zeros outside the clip). A clip's sound is
+read from its video (``input.mp4`` of a harness clip; the annotated clip's file), as
+inference reads it; each clip with sound keeps two variants (clean, and with a noise floor
+10-30 dB below the voice), each clip without sound zeros and two noise backgrounds
+(:func:`.audio_features.noise_features`), one of them drawn per sample.
 """
 from __future__ import annotations
 
@@ -46,7 +53,7 @@ from .model import DISPARITY_CODE_SCALE, AFNetConfig, encode_frame
 
 log = logging.getLogger(__name__)
 
-DATA_VERSION = 1  # bump when the prepared arrays change meaning (invalidates the .npz cache)
+DATA_VERSION = 2  # bump when the prepared arrays change meaning (invalidates the .npz cache)
 
 
 @dataclass
@@ -57,6 +64,8 @@ class ClipData:
     boxes: (n, 4) focus-region box per frame in network px (x, y, w, h), NaN where unknown.
     points: (n, 2) focus point in network px, NaN where unknown (the box centre is used).
     nfts: 0-based NFT frames. fps: frames per second. weak: labels from detectors alone.
+    audio: (V, n, AUDIO_FEATURES) float32 variants of the audio numbers (V = 0: no sound, or
+    the network has no audio input).
     """
 
     name: str
@@ -67,6 +76,7 @@ class ClipData:
     nfts: list[int]
     fps: float
     weak: bool = False
+    audio: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -76,7 +86,8 @@ class ClipData:
 @dataclass
 class Sample:
     """x: (L, C, H, W) float32 input. target: (s, h, w) float32 map distributions; valid: (s,)
-    bool; label: NFT label of the centre frame in [0, 1]; weight: loss weight; kind, name, frame."""
+    bool; label: NFT label of the centre frame in [0, 1]; weight: loss weight; kind, name, frame;
+    audio: (AUDIO_FEATURES, span) float32 audio numbers of the span (empty without audio input)."""
 
     x: np.ndarray
     target: np.ndarray
@@ -86,6 +97,7 @@ class Sample:
     kind: str
     name: str
     frame: int
+    audio: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
 
 
 # ----------------------------------------------------------------------------- ground truth
@@ -112,6 +124,23 @@ def harness_targets(manifest: dict) -> tuple[list[str], list[int]]:
 
 def _box_ok(box) -> bool:
     return box is not None and len(box) == 4 and all(np.isfinite(box)) and box[2] >= 1 and box[3] >= 1
+
+
+def sound_variants(media: Path, fps: float, n: int, name: str) -> np.ndarray:
+    """(V, n, AUDIO_FEATURES) audio variants of a clip (module docstring): clean and with a noise
+    floor when ``media`` has sound, else an empty (0, n, F) array."""
+    from ..laaf.audio import SAMPLE_RATE, NoAudio, decode_audio
+    from .audio_features import AUDIO_FEATURES, frame_features
+
+    try:
+        samples = decode_audio(media, duration_s=n / fps)
+    except NoAudio:
+        return np.zeros((0, n, AUDIO_FEATURES), np.float32)
+    rng = np.random.default_rng(int(hashlib.sha1(name.encode()).hexdigest()[:8], 16))
+    peak_rms = float(np.sqrt(np.mean(samples[np.abs(samples) > 0.01 * np.abs(samples).max()] ** 2))) \
+        if np.abs(samples).max() > 0 else 0.0
+    noisy = samples + rng.standard_normal(samples.size).astype(np.float32) * peak_rms * 10 ** (-rng.uniform(10, 30) / 20)
+    return np.stack([frame_features(samples, SAMPLE_RATE, fps, n), frame_features(noisy, SAMPLE_RATE, fps, n)])
 
 
 def load_harness_clip(folder: Path, config: AFNetConfig) -> ClipData:
@@ -152,7 +181,8 @@ def load_harness_clip(folder: Path, config: AFNetConfig) -> ClipData:
             if pt is not None and rec.get("face_in_frame", True):
                 points[k] = (float(pt[0]) * sx, float(pt[1]) * sy)
     fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
-    return ClipData(folder.name, "harness", frames, boxes, points, nfts, fps)
+    audio = sound_variants(folder / "input.mp4", fps, n, folder.name) if config.audio else None
+    return ClipData(folder.name, "harness", frames, boxes, points, nfts, fps, audio=audio)
 
 
 def load_annotated_clip(clip: AnnotatedClip, config: AFNetConfig, region_tolerance: int = 2) -> ClipData:
@@ -195,7 +225,9 @@ def load_annotated_clip(clip: AnnotatedClip, config: AFNetConfig, region_toleran
                 dist[k] = d
                 boxes[k] = (x * sx, y * sy, bw * sx, bh * sy)
     kind = "weak" if clip.weak else "editor"
-    return ClipData(clip.clip.name, kind, frames, boxes, points, clip.nft_frames, info.fps, weak=clip.weak)
+    audio = sound_variants(clip.clip, info.fps, n, clip.clip.name) if config.audio and info.has_audio else None
+    return ClipData(clip.clip.name, kind, frames, boxes, points, clip.nft_frames, info.fps, weak=clip.weak,
+                    audio=audio)
 
 
 # ----------------------------------------------------------------------------- cache
@@ -203,7 +235,7 @@ def load_annotated_clip(clip: AnnotatedClip, config: AFNetConfig, region_toleran
 
 def _cache_key(parts: list[str], config: AFNetConfig) -> str:
     blob = json.dumps({"parts": parts, "config": {k: v for k, v in config.to_dict().items()
-                                                  if k in ("width", "height", "rgb", "disparity")},
+                                                  if k in ("width", "height", "rgb", "disparity", "audio")},
                        "version": DATA_VERSION}, sort_keys=True)
     return hashlib.sha1(blob.encode()).hexdigest()[:20]
 
@@ -227,7 +259,8 @@ def cached(loader, key_parts: list[str], config: AFNetConfig, cache_dir: Path | 
             z = np.load(path, allow_pickle=False)
             meta = json.loads(str(z["meta"]))
             return ClipData(meta["name"], meta["kind"], z["frames"], z["boxes"], z["points"],
-                            [int(t) for t in meta["nfts"]], float(meta["fps"]), bool(meta["weak"]))
+                            [int(t) for t in meta["nfts"]], float(meta["fps"]), bool(meta["weak"]),
+                            z["audio"] if "audio" in z.files else None)
         except (OSError, ValueError, KeyError) as ex:
             log.warning("AF-Net data cache entry '%s' is unreadable (%s); preparing the clip again", path, ex)
     data = loader()
@@ -235,7 +268,8 @@ def cached(loader, key_parts: list[str], config: AFNetConfig, cache_dir: Path | 
     tmp = temp_sibling(path, ".npz")
     meta = json.dumps({"name": data.name, "kind": data.kind, "nfts": data.nfts, "fps": data.fps, "weak": data.weak})
     with open(tmp, "wb") as f:
-        np.savez(f, frames=data.frames, boxes=data.boxes, points=data.points, meta=np.array(meta))
+        extra = {} if data.audio is None else {"audio": data.audio}
+        np.savez(f, frames=data.frames, boxes=data.boxes, points=data.points, meta=np.array(meta), **extra)
     os.replace(tmp, path)
     return data
 
@@ -361,16 +395,29 @@ class TrainingSet:
         self.flip = flip
         self.jitter = jitter
         self.with_nfts = [i for i, c in enumerate(clips) if c.nfts]
+        self.audio: list[np.ndarray] = []
+        if config.audio:
+            from .audio_features import AUDIO_FEATURES, noise_features
+
+            for c in clips:
+                a = c.audio if c.audio is not None and len(c.audio) else None
+                if a is None:  # silence, and two noise backgrounds
+                    rng = np.random.default_rng(int(hashlib.sha1(c.name.encode()).hexdigest()[:8], 16))
+                    a = np.stack([np.zeros((c.n, AUDIO_FEATURES), np.float32)]
+                                 + [noise_features(c.n, c.fps, rng) for _ in range(2)])
+                self.audio.append(a.astype(np.float32))
 
     def draw(self, rng: np.random.Generator) -> Sample:
         """One sample (module docstring)."""
         cfg = self.config
         if self.with_nfts and rng.random() < self.pos_fraction:
-            clip = self.clips[self.with_nfts[int(rng.integers(len(self.with_nfts)))]]
+            ci = self.with_nfts[int(rng.integers(len(self.with_nfts)))]
+            clip = self.clips[ci]
             t = clip.nfts[int(rng.integers(len(clip.nfts)))]
             c = int(np.clip(round(t + rng.normal(0.0, self.tolerance)), 0, clip.n - 1))
         else:
-            clip = self.clips[int(rng.integers(len(self.clips)))]
+            ci = int(rng.integers(len(self.clips)))
+            clip = self.clips[ci]
             c = int(rng.integers(clip.n))
         idx = np.clip(c + cfg.offsets, 0, clip.n - 1)
         x = clip.frames[idx].astype(np.float32)
@@ -402,8 +449,14 @@ class TrainingSet:
             if tgt is not None:
                 target[u], valid[u] = tgt, True
         weight = self.weak_weight if clip.weak else 1.0
+        audio = np.zeros((0, 0), np.float32)
+        if cfg.audio:
+            from .audio_features import window
+
+            variants = self.audio[ci]
+            audio = window(variants[int(rng.integers(len(variants)))], c, cfg.half_span, cfg.audio)
         return Sample(np.ascontiguousarray(x, dtype=np.float32), target, valid,
-                      nft_label(c, clip.nfts, self.tolerance), weight, clip.kind, clip.name, c)
+                      nft_label(c, clip.nfts, self.tolerance), weight, clip.kind, clip.name, c, audio)
 
     def summary(self) -> str:
         kinds = {}

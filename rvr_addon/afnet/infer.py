@@ -1,13 +1,15 @@
 """AF-Net inference: weights, the streaming runner, and New Focus Targets from its outputs.
 
 :func:`load_afnet` reads exported weights (``rvr train-afnet``; default
-``rvr_addon/afnet/weights/afnet.pt``, none shipped yet) with ``torch.load(weights_only=True)``.
+``rvr_addon/afnet/weights/afnet.pt``) with ``torch.load(weights_only=True)``.
 
 :class:`AFNetStream` takes a clip's frames in order (:func:`.model.encode_frame` bytes) and
 evaluates a query every ``stride`` frames (q = 0, stride, 2 stride, ...) as soon as the frames
 it sees are in: frame ``min(q + half_span, n - 1)``. CNN-1 outputs are cached by unit centre,
 so a query costs one CNN-1 and one CNN-2 pass; frames and features no query needs any more are
-dropped (the stream holds about ``span + stride`` frames). Frames before 0 or after the last
+dropped (the stream holds about ``span + stride`` frames). A network with an audio input gets
+the clip's audio numbers (:mod:`.audio_features`, the whole clip at once: sound is small) at
+construction; without sound they are zeros, as in training. Frames before 0 or after the last
 repeat the first/last frame (padding); a clip shorter than the receptive field is padded the
 same way, with a warning (:func:`check_length`).
 
@@ -181,10 +183,12 @@ class AFNetStream:
     ``finish()`` after the last one. ``probs`` (query frame -> P) and ``maps`` (unit centre
     frame -> (h, w) map distribution) fill as queries run; ``take_peaks()`` returns the NFTs
     that became certain. ``threads``: torch threads while a query runs (None: torch's setting).
+    ``audio``: (n_frames, AUDIO_FEATURES) audio numbers of the clip, or None (silence); used
+    only by a network with an audio input.
     """
 
     def __init__(self, model: AFNet, n_frames: int, threshold: float = 0.5, min_gap: int = 12,
-                 threads: int | None = 1) -> None:
+                 threads: int | None = 1, audio: np.ndarray | None = None) -> None:
         if n_frames < 1:
             raise InputError("AF-Net needs a clip of at least one frame")
         self.model = model.eval()
@@ -194,6 +198,9 @@ class AFNetStream:
         self.min_gap = int(min_gap)
         self.threads = threads
         cfg = self.config
+        if audio is not None and cfg.audio and audio.shape != (self.n, cfg.audio):
+            raise InputError(f"AF-Net audio numbers {audio.shape}: expected ({self.n}, {cfg.audio})")
+        self.audio = audio if cfg.audio else None
         self.queries = list(range(0, self.n, cfg.stride))
         self._frames: dict[int, np.ndarray] = {}
         self._units: dict[int, torch.Tensor] = {}
@@ -229,8 +236,15 @@ class AFNetStream:
     def _unit(self, c: int) -> torch.Tensor:
         if c not in self._units:
             x = np.stack([self._frame(c + int(o)) for o in self._unit_frames])[None]
+            audio = None
+            if self.config.audio:
+                from .audio_features import window
+
+                half = int(self._unit_frames[-1])
+                cols = window(self.audio, c, half, self.config.audio)[:, self._unit_frames + half]
+                audio = torch.from_numpy(np.ascontiguousarray(cols.T))[None]
             with torch.inference_mode():
-                feat, m = self.model.unit(decode_frames(x, self.config))
+                feat, m = self.model.unit(decode_frames(x, self.config), audio)
             self._units[c] = feat[0]
             self.maps[c] = map_to_prob(m)[0].numpy().astype(np.float32)
         return self._units[c]
@@ -243,8 +257,13 @@ class AFNetStream:
             if not final and need >= self.pushed:
                 break
             feats = torch.stack([self._unit(q + int(o)) for o in cfg.unit_offsets])[None]
+            audio = None
+            if cfg.audio:
+                from .audio_features import window
+
+                audio = torch.from_numpy(window(self.audio, q, cfg.half_span, cfg.audio))[None]
             with torch.inference_mode():
-                self.probs[q] = float(torch.sigmoid(self.model.head(feats))[0])
+                self.probs[q] = float(torch.sigmoid(self.model.head(feats, audio))[0])
             self._next_q += 1
             # forget what no later query needs
             lo = q + cfg.stride - cfg.half_span
@@ -305,12 +324,14 @@ class ClipPrediction:
 
 
 def predict_clip(model: AFNet, frames: Iterable[np.ndarray], disparities: Iterable[np.ndarray | None] | None = None,
-                 n_frames: int | None = None, threshold: float = 0.5, min_gap: int = 12) -> ClipPrediction:
-    """Run AF-Net over a clip: frames (H, W, 3) uint8 RGB (and optional disparity maps, any size)."""
+                 n_frames: int | None = None, threshold: float = 0.5, min_gap: int = 12,
+                 audio: np.ndarray | None = None) -> ClipPrediction:
+    """Run AF-Net over a clip: frames (H, W, 3) uint8 RGB (and optional disparity maps, any size;
+    audio numbers (n, AUDIO_FEATURES) for a network with an audio input)."""
     frames = list(frames)
     disp = list(disparities) if disparities is not None else [None] * len(frames)
     n = n_frames or len(frames)
-    stream = AFNetStream(model, n, threshold, min_gap)
+    stream = AFNetStream(model, n, threshold, min_gap, audio=audio)
     for rgb, d in zip(frames, disp):
         from .model import encode_frame
 

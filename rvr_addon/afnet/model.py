@@ -23,6 +23,13 @@ Input per sampled frame (``input_channels``): RGB (or gray) in [-0.5, 0.5] at
 of the frame's disparity normalised per frame (:func:`normalise_disparity`: median removed,
 divided by the 10-90 % spread, clipped to +-3), so the offset and scale of an estimated
 disparity do not matter.
+
+Audio (beyond the paper; ``audio`` > 0, :mod:`.audio_features`): ``audio`` numbers per clip
+frame. CNN-1 gets those of its unit's sampled frames as constant input planes (it can tell a
+moving mouth while a voice sounds from one in silence); CNN-2 gets those of every clip frame
+of the query's span (``span`` columns: speech onsets are sharper than the sampling step)
+through a small 1-D convolution, joined to its pooled features before the linear layer. A
+network with ``audio = 0`` is the paper's and has the same weights as before audio existed.
 """
 from __future__ import annotations
 
@@ -44,7 +51,8 @@ class AFNetConfig:
     gray (1). disparity: add the normalised disparity channel. f_t: sampled frames per
     temporal unit (odd). s: temporal units (odd). sample_step: clip frames between sampled
     frames. stride: clip frames between queries at inference. widths1: CNN-1 channels of its
-    four blocks. widths2: CNN-2 channels (reduction, then three blocks).
+    four blocks. widths2: CNN-2 channels (reduction, then three blocks). audio: audio numbers per
+    clip frame (0: none, the paper's network; :data:`.audio_features.AUDIO_FEATURES` with sound).
     """
 
     width: int = 128
@@ -57,6 +65,7 @@ class AFNetConfig:
     stride: int = 5
     widths1: tuple[int, ...] = (32, 48, 64, 96)
     widths2: tuple[int, ...] = (64, 64, 96, 128)
+    audio: int = 0
 
     def check(self) -> "AFNetConfig":
         """Raise ValueError naming the bad hyper-parameter; returns self."""
@@ -66,6 +75,8 @@ class AFNetConfig:
             raise ValueError(f"AF-Net f_t={self.f_t}, s={self.s}: both must be odd and >= 1 (a centre frame)")
         if self.sample_step < 1 or self.stride < 1:
             raise ValueError(f"AF-Net sample_step={self.sample_step}, stride={self.stride}: must be >= 1")
+        if self.audio < 0:
+            raise ValueError(f"AF-Net audio={self.audio}: must be >= 0 (0: no audio input)")
         if len(self.widths1) != 4 or len(self.widths2) != 4 or min(self.widths1 + self.widths2) < 1:
             raise ValueError("AF-Net widths1 and widths2 need 4 positive channel counts each")
         return self
@@ -215,7 +226,7 @@ class CNN1(nn.Module):
     def __init__(self, config: AFNetConfig) -> None:
         super().__init__()
         w = config.widths1
-        self.stem = nn.Sequential(nn.Conv2d(config.f_t * config.channels, w[0], 3, 2, 1, bias=False),
+        self.stem = nn.Sequential(nn.Conv2d(config.f_t * (config.channels + config.audio), w[0], 3, 2, 1, bias=False),
                                   nn.BatchNorm2d(w[0]), nn.ReLU(inplace=True))
         self.b1 = BasicBlock(w[0], w[0])
         self.b2 = BasicBlock(w[0], w[1], 2)
@@ -234,7 +245,10 @@ class CNN1(nn.Module):
 
 class CNN2(nn.Module):
     """s unit feature maps -> NFT logit: 1x1 reduction, three basic blocks (two with stride 2),
-    global average pooling, linear (ResNet-10-like)."""
+    global average pooling, linear (ResNet-10-like). With audio, a 1-D convolution over the
+    span's audio columns adds AUDIO_WIDTH numbers before the linear layer."""
+
+    AUDIO_WIDTH = 32
 
     def __init__(self, config: AFNetConfig) -> None:
         super().__init__()
@@ -244,12 +258,28 @@ class CNN2(nn.Module):
         self.b1 = BasicBlock(w[0], w[1])
         self.b2 = BasicBlock(w[1], w[2], 2)
         self.b3 = BasicBlock(w[2], w[3], 2)
-        self.fc = nn.Linear(w[3], 1)
+        self.audio = None
+        self.span = config.span
+        extra = 0
+        if config.audio:
+            a = self.AUDIO_WIDTH
+            steps = ((config.span + 1) // 2 + 1) // 2  # two stride-2 convolutions
+            self.audio = nn.Sequential(nn.Conv1d(config.audio, a, 5, 1, 2), nn.ReLU(inplace=True),
+                                       nn.Conv1d(a, a, 5, 2, 2), nn.ReLU(inplace=True),
+                                       nn.Conv1d(a, a, 5, 2, 2), nn.ReLU(inplace=True),
+                                       nn.Flatten(), nn.Linear(a * steps, a), nn.ReLU(inplace=True))
+            extra = a
+        self.fc = nn.Linear(w[3] + extra, 1)
 
-    def forward(self, feats: torch.Tensor) -> torch.Tensor:
-        """feats: (B, s * widths1[3], H/8, W/8). Returns (B,) logits."""
-        y = self.b3(self.b2(self.b1(self.reduce(feats))))
-        return self.fc(y.mean(dim=(2, 3)))[:, 0]
+    def forward(self, feats: torch.Tensor, audio: torch.Tensor | None = None) -> torch.Tensor:
+        """feats: (B, s * widths1[3], H/8, W/8); audio: (B, audio, span) or None (with an audio
+        branch: silence). Returns (B,) logits."""
+        y = self.b3(self.b2(self.b1(self.reduce(feats)))).mean(dim=(2, 3))
+        if self.audio is not None:
+            if audio is None:
+                audio = feats.new_zeros(feats.shape[0], self.audio[0].in_channels, self.span)
+            y = torch.cat([y, self.audio(audio.to(y))], dim=1)
+        return self.fc(y)[:, 0]
 
 
 class AFNet(nn.Module):
@@ -265,19 +295,27 @@ class AFNet(nn.Module):
         """Number of trainable parameters."""
         return sum(p.numel() for p in self.parameters())
 
-    def unit(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """CNN-1 on units: x (N, f_T, C, H, W) -> (features, map logits (N, H/4, W/4))."""
+    def unit(self, x: torch.Tensor, audio: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """CNN-1 on units: x (N, f_T, C, H, W), audio (N, f_T, audio) of the unit's frames (None:
+        silence; ignored without ``config.audio``) -> (features, map logits (N, H/4, W/4))."""
         n, f, c, h, w = x.shape
-        feat, m = self.cnn1(x.reshape(n, f * c, h, w))
+        x = x.reshape(n, f * c, h, w)
+        if self.config.audio:
+            a = self.config.audio
+            planes = x.new_zeros(n, f * a, 1, 1) if audio is None else audio.reshape(n, f * a, 1, 1).to(x)
+            x = torch.cat([x, planes.expand(n, f * a, h, w)], dim=1)
+        feat, m = self.cnn1(x)
         return feat, m[:, 0]
 
-    def head(self, feats: torch.Tensor) -> torch.Tensor:
-        """CNN-2: feats (B, s, C1, h, w) -> NFT logits (B,)."""
+    def head(self, feats: torch.Tensor, audio: torch.Tensor | None = None) -> torch.Tensor:
+        """CNN-2: feats (B, s, C1, h, w), audio (B, audio, span) or None -> NFT logits (B,)."""
         b, s, c, h, w = feats.shape
-        return self.cnn2(feats.reshape(b, s * c, h, w))
+        return self.cnn2(feats.reshape(b, s * c, h, w), audio)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """x: (B, L, C, H, W), L = s * f_T sampled frames in time order.
+    def forward(self, x: torch.Tensor, audio: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """x: (B, L, C, H, W), L = s * f_T sampled frames in time order; audio: (B, audio, span),
+        the audio numbers of every clip frame of the query's span (None: silence; ignored
+        without ``config.audio``).
 
         Returns (NFT logits (B,) of the centre frame, map logits (B, s, H/4, W/4) of the unit
         centres)."""
@@ -287,12 +325,46 @@ class AFNet(nn.Module):
             raise ValueError(f"AF-Net input {tuple(x.shape)}: expected (B, {cfg.frames_seen}, {cfg.channels}, "
                              f"{cfg.height}, {cfg.width})")
         units = x.reshape(b * cfg.s, cfg.f_t, c, h, w)
-        feat, maps = self.unit(units)
-        logits = self.head(feat.reshape(b, cfg.s, *feat.shape[1:]))
+        unit_audio = None
+        if cfg.audio and audio is not None:
+            if tuple(audio.shape) != (b, cfg.audio, cfg.span):
+                raise ValueError(f"AF-Net audio {tuple(audio.shape)}: expected ({b}, {cfg.audio}, {cfg.span})")
+            unit_audio = unit_audio_of(audio, cfg)
+        feat, maps = self.unit(units, unit_audio)
+        logits = self.head(feat.reshape(b, cfg.s, *feat.shape[1:]), audio if cfg.audio else None)
         return logits, maps.reshape(b, cfg.s, *maps.shape[1:])
+
+
+def unit_audio_of(audio: torch.Tensor, config: AFNetConfig) -> torch.Tensor:
+    """(B, audio, span) span columns -> (B * s, f_T, audio): the columns of each unit's sampled frames."""
+    b = audio.shape[0]
+    cols = torch.as_tensor(config.offsets + config.half_span)
+    return audio[:, :, cols].permute(0, 2, 1).reshape(b * config.s, config.f_t, config.audio)
 
 
 def map_to_prob(logits: torch.Tensor) -> torch.Tensor:
     """Spatial softmax of map logits (..., h, w) -> a distribution over the map cells."""
     shape = logits.shape
     return torch.softmax(logits.reshape(*shape[:-2], -1), dim=-1).reshape(shape)
+
+
+def grow_state_dict(state: dict[str, torch.Tensor], old: AFNetConfig, new: AFNetConfig) -> dict[str, torch.Tensor]:
+    """Weights of a network with config ``old`` mapped onto one with ``new``, which may differ
+    only by the audio input switched on: CNN-1's stem and CNN-2's linear layer gain zero
+    input columns, so the grown network predicts exactly what the old one did until training
+    moves them; the audio branch keeps its fresh initialisation (missing from the result).
+    Raises ValueError for any other difference."""
+    from dataclasses import replace
+
+    if old == new:
+        return dict(state)
+    if old.audio or replace(old, audio=new.audio) != new:
+        raise ValueError(f"cannot start an AF-Net with config {new.to_dict()} from weights with config "
+                         f"{old.to_dict()}: only switching the audio input on is supported")
+    grown = dict(state)
+    stem = state["cnn1.stem.0.weight"]
+    extra = new.f_t * new.audio
+    grown["cnn1.stem.0.weight"] = torch.cat([stem, stem.new_zeros(stem.shape[0], extra, *stem.shape[2:])], dim=1)
+    fc = state["cnn2.fc.weight"]
+    grown["cnn2.fc.weight"] = torch.cat([fc, fc.new_zeros(fc.shape[0], CNN2.AUDIO_WIDTH)], dim=1)
+    return grown

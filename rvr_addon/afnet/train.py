@@ -21,6 +21,10 @@ afnet.json      the same header, for people
 data_cache/     the prepared clips (.npz), reused on resume
 ```
 
+``--init-from WEIGHTS`` starts a new run from exported AF-Net weights (their architecture; with
+``--audio`` on weights without it, the audio input is added with zero weights, so the run starts
+from exactly the old predictions: :func:`.model.grow_state_dict`).
+
 ``--resume`` continues exactly where the checkpoint stopped (same samples and result as an
 uninterrupted run); rows of the log past the checkpoint are dropped.
 """
@@ -38,7 +42,7 @@ import torch.nn.functional as F
 
 from .. import __version__
 from ..errors import InputError, RvrError
-from ..training_run import TrainingRun, save_png, save_weights
+from ..training_run import TrainingRun, previous_init_record, save_png, save_weights
 from .data import Sample, TrainingSet, load_training_clips
 from .model import AFNet, AFNetConfig
 
@@ -70,17 +74,19 @@ class AFNetTrainSettings:
     seed: int = 0
     resume: bool = False
     model: AFNetConfig = field(default_factory=AFNetConfig)
+    init_from: Path | None = None
 
 
 def batch_loss(model: AFNet, samples: list[Sample], w_map: float = 1.0, w_nft: float = 1.0
                ) -> tuple[torch.Tensor, dict[str, float]]:
     """The loss of the module docstring on a batch; returns (total, float parts for the log)."""
     x = torch.from_numpy(np.stack([s.x for s in samples]))
+    audio = torch.from_numpy(np.stack([s.audio for s in samples])) if model.config.audio else None
     target = torch.from_numpy(np.stack([s.target for s in samples]))
     valid = torch.from_numpy(np.stack([s.valid for s in samples]))
     label = torch.tensor([s.label for s in samples], dtype=torch.float32)
     weight = torch.tensor([s.weight for s in samples], dtype=torch.float32)
-    logits, maps = model(x)
+    logits, maps = model(x, audio)
     logp = F.log_softmax(maps.flatten(2), dim=-1)
     ce = -(target.flatten(2) * logp).sum(-1)  # (B, s)
     vw = valid.float() * weight[:, None]
@@ -120,15 +126,32 @@ class AFNetTrainer(TrainingRun):
         if s.weak_weight < 0 or s.w_map < 0 or s.w_nft < 0:
             raise InputError(f"--weak-weight, --w-map and --w-nft must be >= 0 (got {s.weak_weight}, {s.w_map}, "
                              f"{s.w_nft})")
+        if s.resume and s.init_from is not None:
+            raise InputError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
         self._check_run_dir()
         checkpoint = self._load_checkpoint() if s.resume else None
         model_cfg = AFNetConfig.from_dict(json.loads(checkpoint["model_config"])) if checkpoint else s.model.check()
+        start_state = None
+        self.init_record: dict | None = None
+        if checkpoint is None and s.init_from is not None:
+            model_cfg, start_state, self.init_record = _initial_weights(Path(s.init_from), s.model.audio)
+        elif checkpoint is not None:
+            self.init_record = previous_init_record(self.run_dir / "run.json")
         self.run_dir.mkdir(parents=True, exist_ok=True)
         clips, self.report = load_training_clips(model_cfg, s.data, s.annotations, self.run_dir / "data_cache",
                                                  progress=progress)
         self.data = TrainingSet(clips, model_cfg, pos_fraction=s.pos_fraction, weak_weight=s.weak_weight,
                                 tolerance=s.tolerance)
-        self._start(lambda: AFNet(model_cfg), checkpoint)
+
+        def build() -> AFNet:
+            net = AFNet(model_cfg)
+            if start_state is not None:
+                full = net.state_dict()
+                full.update(start_state)  # the audio branch keeps its fresh initialisation
+                net.load_state_dict(full)
+            return net
+
+        self._start(build, checkpoint)
 
     def _plot_losses(self, out: Path) -> None:
         plot_losses(self.log_path, out)
@@ -151,10 +174,26 @@ class AFNetTrainer(TrainingRun):
                 "batch": s.batch, "weak_weight": s.weak_weight, "w_map": s.w_map, "w_nft": s.w_nft,
                 "pos_fraction": s.pos_fraction, "tolerance_frames": s.tolerance, "seed": s.seed,
                 "model": self.model.config.to_dict(), "parameters": self.model.parameter_count(),
-                "training_data": self.report.to_dict()}
+                "init_from": self.init_record, "training_data": self.report.to_dict()}
 
     def _export_weights(self, path: Path, training: dict) -> Path:
         return export_weights(self.model, path, self.iteration, self.wall_time, training)
+
+
+def _initial_weights(path: Path, audio: int) -> tuple[AFNetConfig, dict, dict]:
+    """(config, state dict, record for run.json) of a new run from the AF-Net weights in ``path``,
+    grown by the audio input when ``audio`` is asked and the weights lack it."""
+    from dataclasses import replace
+
+    from .infer import load_afnet
+    from .model import grow_state_dict
+
+    model, header = load_afnet(path)
+    old = model.config
+    new = replace(old, audio=old.audio or audio)
+    record = {"path": str(path), "iterations": header.get("iterations"), "wall_time_s": header.get("wall_time_s"),
+              "audio_added": new != old}
+    return new, grow_state_dict(model.state_dict(), old, new), record
 
 
 def export_weights(model: AFNet, path: Path, iterations: int, wall_time_s: float, training: dict) -> Path:

@@ -44,7 +44,7 @@ from ..color import srgb_to_linear
 from ..errors import InputError, RvrError
 from ..render.aperture import ApertureSpec
 from ..render.model import K_HDR, hdr_radiance
-from ..training_run import TrainingRun, save_png, save_weights
+from ..training_run import TrainingRun, previous_init_record, save_png, save_weights
 from ..training_run import deferred_interrupt  # noqa: F401 - re-exported: callers import it from here
 from .data import Augment, SkipReport, TrainingSet, TrainSample, harness_sources, photo_sources
 from .losses import (
@@ -213,7 +213,7 @@ class Trainer(TrainingRun):
         self.init_record: dict | None = None
         if checkpoint is not None:
             model_cfg = EstimatorConfig.from_dict(json.loads(checkpoint["model_config"]))
-            self.init_record = _previous_init_record(self.run_dir / "run.json")
+            self.init_record = previous_init_record(self.run_dir / "run.json")
         elif s.init_from is not None:
             model_cfg, start_state, self.init_record = _initial_weights(Path(s.init_from), s.model.row_prior)
 
@@ -282,14 +282,6 @@ def _initial_weights(path: Path, row_prior: bool) -> tuple[EstimatorConfig, dict
     log.info("starting from the weights in %s (%s iterations)%s", path, record["iterations"],
              ", row prior added" if new != old else "")
     return new, grow_state_dict(loaded.net.state_dict(), old, new), record
-
-
-def _previous_init_record(run_json: Path) -> dict | None:
-    """The ``init_from`` record of a resumed run (None when it started from scratch or is unknown)."""
-    try:
-        return json.loads(run_json.read_text()).get("init_from")
-    except (OSError, ValueError, AttributeError):
-        return None
 
 
 def export_weights(model: EstimatorNet, path: Path, iterations: int, wall_time_s: float, training: dict,

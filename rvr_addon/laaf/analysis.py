@@ -128,7 +128,10 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     if "afnet" in names and whole_clip:
         from .detectors.afnet import AFNetDetector
 
-        detectors["afnet"] = AFNetDetector(s.afnet_weights, setup.n, setup.fps, s.afnet_threshold)
+        clip = setup.clip
+        media = clip.path if clip.kind == "video" and clip.has_audio else None
+        detectors["afnet"] = AFNetDetector(s.afnet_weights, setup.n, setup.fps, s.afnet_threshold, media=media,
+                                           start_frame=setup.start)
     from .detectors.action import ActionDetector
     from .detectors.face import FaceDetector
     from .detectors.saliency import SaliencyDetector

@@ -28,19 +28,29 @@ class AFNetDetector(FocusDetector):
 
     weights: exported AF-Net weights (None: ``rvr_addon/afnet/weights/afnet.pt``). n_frames:
     clip length. fps: frame rate (sets min_gap to half a second unless given). threshold: the
-    NFT probability a peak must reach. Raises InputError (naming the path and how to make it)
-    when the weights are missing."""
+    NFT probability a peak must reach. media, start_frame: the clip file and its first analysed
+    frame, whose sound a network with an audio input hears (None: silence, said in the log).
+    Raises InputError (naming the path and how to make it) when the weights are missing."""
 
     name = "afnet"
 
     def __init__(self, weights: str | Path | None, n_frames: int, fps: float, threshold: float = 0.5,
-                 min_gap: int | None = None) -> None:
+                 min_gap: int | None = None, media: str | Path | None = None, start_frame: int = 0) -> None:
         from ...afnet.infer import AFNetStream, load_afnet, nft_min_gap
 
         self.model, self.header = load_afnet(weights)
         self.config = self.model.config
         gap = nft_min_gap(fps) if min_gap is None else int(min_gap)
-        self.stream = AFNetStream(self.model, n_frames, threshold, gap)
+        audio = None
+        self.heard = False
+        if self.config.audio:
+            from ...afnet.audio_features import clip_features
+
+            audio = clip_features(media, fps, n_frames, start_frame) if media is not None else None
+            self.heard = audio is not None
+            if audio is None:
+                log.debug("AF-Net hears no sound (no audio track): its audio input is silence")
+        self.stream = AFNetStream(self.model, n_frames, threshold, gap, audio=audio)
         self.lookahead_frames = self.config.half_span + gap + self.config.stride
         self.size: tuple[int, int] | None = None
         self._frames = 0
@@ -87,4 +97,5 @@ class AFNetDetector(FocusDetector):
         probs = self.stream.probs
         return {"frames": self._frames, "queries": len(probs), "nfts": self._nfts,
                 "max_p": round(max(probs.values()), 4) if probs else None,
-                "receptive_field_frames": self.config.span, "padded": self.stream.padded}
+                "receptive_field_frames": self.config.span, "padded": self.stream.padded,
+                "audio": bool(self.config.audio), "heard_sound": self.heard}
