@@ -212,6 +212,9 @@ def add_train_parser(sub) -> None:
                    help="give the disparity head the row coordinate (lets the network learn that the floor is "
                         "nearer toward the bottom of the frame); with --init-from it is added, zero-initialised, "
                         "to weights without it")
+    p.add_argument("--ignore-prints", action="store_true",
+                   help="no disparity supervision on the harness's photo prints (billboards, poster panels: "
+                        "photographs of real scenes on flat boards), which teach that a photographed scene is flat")
     p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
     sup = LossWeights()
     p.add_argument("--supervised-weight", type=float, default=sup.supervised, metavar="W",
@@ -256,7 +259,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
         whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
-        inference_max_pixels=args.inference_max_pixels, init_from=args.init_from,
+        inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
         model=EstimatorConfig(row_prior=args.row_prior))
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)

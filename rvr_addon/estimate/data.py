@@ -32,6 +32,13 @@ the input (area when shrinking), from which the target exponent ``E_gt = max(ln(
 L_lin), 0) / 50`` and the saturated mask (brightest input channel >= 254/255) are computed on
 the resized, cropped, flipped input itself (:func:`exponent_target`). Photos have none.
 
+``ignore_prints`` (``rvr train --ignore-prints``): the harness's photo prints (its billboards
+and poster panels: whole photographs of real scenes on flat boards) get no disparity
+supervision: their pixels of the ground truth are NaN (by the ``ID`` channel of
+``gt/disparity`` and the manifest's ``object_ids``). Supervised there, the network learns that
+a photograph of a scene is flat, and real footage is exactly that: a photograph of a scene.
+They still train the HDR terms and the rendering loss.
+
 **(b) A user's aperture-bracketed photos** (a DSLR with Magic Lantern, a phone's "pro" mode):
 a folder of shots, each either flat files ``NAME_small.EXT`` + ``NAME_large.EXT``
 [+ ``NAME_medium.EXT``] [+ ``NAME_focusB.EXT``] [+ ``NAME.json``], or a sub-folder per shot
@@ -62,7 +69,7 @@ import math
 import os
 import re
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable
 
@@ -108,6 +115,7 @@ class SampleSource:
     third: names of the members usable as the third image, by kind (``aperture`` / ``focal``).
     gt_disparity, gt_hdr: harness ground truth of the input (``gt/disparity`` EXR, channel D in
         px at the native width; ``gt/hdr`` EXR, linear radiance R, G, B), None for photos.
+    unsupervised_ids: object IDs (channel ID of gt_disparity) whose disparity is not supervised.
     """
 
     name: str
@@ -118,6 +126,7 @@ class SampleSource:
     third: dict[str, tuple[str, ...]]
     gt_disparity: Path | None = None
     gt_hdr: Path | None = None
+    unsupervised_ids: tuple[int, ...] = ()
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -236,10 +245,11 @@ def resize_radiance(radiance: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return cv2.resize(radiance, size, interpolation=interp)
 
 
-def read_gt_disparity(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
+def read_gt_disparity(path: Path, size: tuple[int, int] | None = None, ignore_ids: tuple[int, ...] = ()) -> np.ndarray:
     """Channel D of a harness ``gt/disparity`` EXR, (H, W) float32, non-finite values as NaN.
 
     size: the expected (width, height); InputError naming the file when it differs.
+    ignore_ids: object IDs (channel ID) whose pixels become NaN (not supervised).
     """
     from ..io.exr import read_exr
 
@@ -249,7 +259,27 @@ def read_gt_disparity(path: Path, size: tuple[int, int] | None = None) -> np.nda
     d = np.asarray(ch["D"], dtype=np.float32)
     if size is not None and (d.shape[1], d.shape[0]) != tuple(size):
         raise InputError(f"ground-truth disparity {path} is {d.shape[1]}x{d.shape[0]}, the input {size[0]}x{size[1]}")
-    return np.where(np.isfinite(d), d, np.nan).astype(np.float32)
+    keep = np.isfinite(d)
+    if ignore_ids:
+        if "ID" not in ch:
+            raise InputError(f"ground-truth disparity {path} has no channel ID, needed to leave the prints out "
+                             "(--ignore-prints); regenerate the clip or train without --ignore-prints")
+        keep &= ~np.isin(np.rint(ch["ID"]).astype(np.int64), np.asarray(ignore_ids, np.int64))
+    return np.where(keep, d, np.nan).astype(np.float32)
+
+
+PRINT_OBJECTS = ("billboards", "panel_")
+"""Names (or name prefixes, ending in _) of the harness objects that are photo prints."""
+
+
+def print_ids(manifest: dict) -> tuple[int, ...]:
+    """Object IDs of the photo prints of a harness clip (its manifest's ``object_ids``)."""
+    ids = []
+    for key, name in (manifest.get("object_ids") or {}).items():
+        name = str(name)
+        if any(name.startswith(p) if p.endswith("_") else name == p for p in PRINT_OBJECTS):
+            ids.append(int(key))
+    return tuple(sorted(ids))
 
 
 def read_gt_radiance(path: Path, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -362,10 +392,11 @@ def _member(clip: Path, name: str, rec: dict, sidecar: Path) -> Member:
     return Member(path, alpha, beta)
 
 
-def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
+def harness_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False) -> list[SampleSource]:
     """Training sources of every harness clip under ``root`` (see the module docstring).
 
     Incomplete frames and malformed sidecars are skipped and counted in ``report``.
+    ignore_prints: leave the photo prints out of the disparity supervision (module docstring).
     Raises InputError when ``root`` holds no harness clip.
     """
     clips = find_harness_clips(root)
@@ -380,8 +411,10 @@ def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
         train = clip / "train"
         sidecars = sorted((p for p in train.glob("frame_*.json") if _SIDECAR.search(p.name)), key=natural_key) \
             if train.is_dir() else []
+        ignore = print_ids(manifest) if ignore_prints else ()
         if not sidecars:
-            sources += _ground_truth_sources(clip, manifest, config_hash, width, report)
+            sources += [replace(src, unsupervised_ids=ignore)
+                        for src in _ground_truth_sources(clip, manifest, config_hash, width, report)]
             continue
         for sidecar in sidecars:
             frame = int(_SIDECAR.search(sidecar.name).group(1))
@@ -390,7 +423,7 @@ def harness_sources(root: str | Path, report: SkipReport) -> list[SampleSource]:
                 report.add("incomplete frame", f"training frame {frame} of {clip} is incomplete ({reason}); skipped")
                 continue
             try:
-                sources.append(_harness_source(clip, frame, sidecar, width))
+                sources.append(replace(_harness_source(clip, frame, sidecar, width), unsupervised_ids=ignore))
             except (InputError, OSError, ValueError) as ex:
                 report.add("bad sidecar", f"training frame {frame} of {clip}: {ex}; skipped")
     return sources
@@ -796,7 +829,8 @@ class TrainingSet:
         inp = prep(image)
         gt_d = gt_e = sat = None
         if src.gt_disparity is not None:
-            gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h)), size) * px_scale)
+            gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h), src.unsupervised_ids), size)
+                             * px_scale)
         if src.gt_hdr is not None:
             hdr = crop_flip(resize_radiance(read_gt_radiance(src.gt_hdr, (w, h)), size))
             gt_e, sat = exponent_target(inp, hdr)

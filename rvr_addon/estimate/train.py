@@ -90,6 +90,8 @@ class TrainSettings:
     photo_max_side: int = 1024
     align_motion: str = "homography"
     model: EstimatorConfig = field(default_factory=EstimatorConfig)
+    ignore_prints: bool = False
+    """Leave the harness's photo prints out of the disparity supervision (:mod:`.data`)."""
     init_from: Path | None = None
     """A new run starts from these weights (estimator.pt or a checkpoint) instead of a random init;
     its architecture is theirs, with ``model.row_prior`` switched on if asked (zero-initialised)."""
@@ -200,7 +202,7 @@ class Trainer(TrainingRun):
         self.report = SkipReport()
         sources = []
         for root in s.data:
-            sources += harness_sources(root, self.report)
+            sources += harness_sources(root, self.report, ignore_prints=s.ignore_prints)
         for folder in s.user_photos:
             sources += photo_sources(folder, self.run_dir / "photos", self.report, max_side=s.photo_max_side,
                                      motion=s.align_motion, progress=progress)
@@ -258,6 +260,7 @@ class Trainer(TrainingRun):
             "data": [str(p) for p in s.data], "user_photos": [str(p) for p in s.user_photos],
             "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop,
             "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share, "seed": s.seed,
+            "ignore_prints": s.ignore_prints,
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),
             "parameters": self.model.parameter_count(), "training_data": self.data.summary(),

@@ -307,3 +307,42 @@ def test_ground_truth_only_clips_train_the_supervised_terms(tmp_path):
     assert "rend" not in res.parts and "sup_d" in res.parts and "d_rms_px" in res.parts
     with pytest.raises(InputError, match="--supervised-weight"):
         sample_loss(EstimatorNet(), sample, LossWeights(supervised=0.0))
+
+
+def test_ignore_prints_leaves_the_photo_prints_unsupervised(tmp_path):
+    """--ignore-prints: billboards and poster panels (by ID) are NaN in the disparity target."""
+    from dataclasses import replace
+
+    from rvr_addon.estimate.data import print_ids, read_gt_disparity
+    from rvr_addon.io.exr import write_exr
+
+    manifest = {"object_ids": {"0": "set", "1": "ben", "24": "panel_3", "42": "billboards", "43": "lamps",
+                               "25": "panelled_wall"}}
+    assert print_ids(manifest) == (24, 42)
+    assert print_ids({}) == ()
+    d = np.arange(48 * 40, dtype=np.float32).reshape(40, 48)
+    ids = np.zeros((40, 48), np.float32)
+    ids[:, :10] = 42
+    ids[:5] = 24
+    ids[-3:, -3:] = 1
+    exr = tmp_path / "d.exr"
+    write_exr(exr, {"D": d, "ID": ids})
+    got = read_gt_disparity(exr, (48, 40), (24, 42))
+    assert np.isnan(got[:, :10]).all() and np.isnan(got[:5]).all()
+    np.testing.assert_array_equal(got[5:, 10:], d[5:, 10:])
+    np.testing.assert_array_equal(read_gt_disparity(exr, (48, 40)), d)  # without: all supervised
+    write_exr(tmp_path / "noid.exr", {"D": d})
+    with pytest.raises(InputError, match="no channel ID.*--ignore-prints"):
+        read_gt_disparity(tmp_path / "noid.exr", (48, 40), (42,))
+
+    make_clip(tmp_path / "clipP", seed=3, frames=1, width=48, height=40)
+    path = tmp_path / "clipP" / "manifest.json"
+    m = json.loads(path.read_text())
+    m["object_ids"] = manifest["object_ids"]
+    path.write_text(json.dumps(m))
+    (src,) = harness_sources(tmp_path / "clipP", SkipReport(), ignore_prints=True)
+    assert src.unsupervised_ids == (24, 42)
+    assert harness_sources(tmp_path / "clipP", SkipReport())[0].unsupervised_ids == ()
+    src = replace(src, gt_disparity=exr)
+    sample = TrainingSet([src], Augment(crop=48, scale_range=(1.0, 1.0), flip=False)).make(src, np.random.default_rng(0))
+    assert np.isnan(sample.gt_disparity[:, :10]).all() and np.isfinite(sample.gt_disparity[5:, 10:]).all()
