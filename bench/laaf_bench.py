@@ -10,8 +10,9 @@ a vertical ramp from 6 px at the top to -2 px at the bottom (the floor comes nea
 through ``--depth`` like any user map. Timed: ``AutofocusJob.run`` end to end -- decoding, the
 analysis resize, disparity read, every detector, combination, K-means, step detection, KCF
 tracking, the puller and the keyframe fit. Presets: conversation (face + speech, the heaviest:
-dlib HOG every 6th frame) and action (DIS flow + parallax fit + saliency), look-ahead and
-causal. ``laaf.360p.fps`` is the slowest of them. The last stdout line is DESIGN.md's JSON.
+dlib HOG every 6th frame), action (DIS flow + parallax fit + saliency) and, when AF-Net weights
+are shipped, learned (AF-Net with the clip's sound: ``laaf.learned.*``), look-ahead and causal.
+``laaf.360p.fps`` is the slowest of them. The last stdout line is DESIGN.md's JSON.
 """
 from __future__ import annotations
 
@@ -67,7 +68,10 @@ def main() -> int:
         # warm-up: loads dlib's model and OpenCV's kernels once
         AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset="conversation", stop=8)).run(progress=False)
         fps_all = []
-        for preset in ("conversation", "action"):
+        from rvr_addon.afnet.infer import DEFAULT_WEIGHTS
+
+        presets = ("conversation", "action") + (("learned",) if DEFAULT_WEIGHTS.is_file() else ())
+        for preset in presets:
             for causal in (False, True):
                 job = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset=preset, causal=causal))
                 t0 = time.perf_counter()

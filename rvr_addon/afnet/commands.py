@@ -45,8 +45,12 @@ def add_parser(sub) -> None:
     p.add_argument("--units", type=int, default=d.s, help=f"temporal units s, odd (default {d.s})")
     p.add_argument("--sample-step", type=int, default=d.sample_step,
                    help=f"clip frames between sampled frames (default {d.sample_step}, as the paper)")
-    p.add_argument("--stride", type=int, default=d.stride,
-                   help=f"clip frames between queries at inference (default {d.stride}, as the paper)")
+    p.add_argument("--stride", type=int, default=None,
+                   help=f"clip frames between queries at inference, written into the weights (default {d.stride}, "
+                        "as the paper; training does not use it, so a --resume may change it)")
+    p.add_argument("--threshold", type=float, default=None, metavar="P",
+                   help="NFT probability that `--preset learned` uses by default with these weights (written into "
+                        "their header; default: none, i.e. 0.5)")
     p.add_argument("--audio", action="store_true",
                    help="give the network the clip's sound too (beyond the paper: voice activity, level, onsets and "
                         "voice register per frame; see rvr_addon/afnet/audio_features.py)")
@@ -66,7 +70,8 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
     try:
         w, h = (int(v) for v in args.size.lower().split("x"))
         config = AFNetConfig(width=w, height=h, rgb=not args.gray, disparity=not args.no_disparity, f_t=args.f_t,
-                             s=args.units, sample_step=args.sample_step, stride=args.stride,
+                             s=args.units, sample_step=args.sample_step,
+                             stride=args.stride if args.stride is not None else AFNetConfig().stride,
                              audio=AUDIO_FEATURES if args.audio else 0).check()
     except ValueError as ex:
         raise RvrError(f"--size/--f-t/--units/--sample-step/--stride: {ex}") from None
@@ -78,7 +83,8 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
         run_dir=args.output, data=list(args.data), annotations=list(args.annotations), iterations=args.iterations,
         lr=args.lr, batch=args.batch, weak_weight=args.weak_weight, w_map=args.w_map, w_nft=args.w_nft,
         pos_fraction=args.pos_fraction, tolerance=args.tolerance, checkpoint_every=args.checkpoint_every,
-        seed=args.seed, resume=args.resume, model=config, init_from=args.init_from)
+        seed=args.seed, resume=args.resume, model=config, init_from=args.init_from, stride=args.stride,
+        threshold=args.threshold)
     trainer = AFNetTrainer(settings, progress=not args.quiet)
     print(f"training AF-Net ({trainer.model.parameter_count()} parameters, receptive field "
           f"{trainer.model.config.span} frames) on {trainer.report.summary()}", file=sys.stderr)

@@ -75,6 +75,11 @@ class AFNetTrainSettings:
     resume: bool = False
     model: AFNetConfig = field(default_factory=AFNetConfig)
     init_from: Path | None = None
+    stride: int | None = None
+    """Inference stride written into the weights (None: the model config's; a resumed run may change
+    it: queries at inference only, training does not use it)."""
+    threshold: float | None = None
+    """NFT probability threshold written into the weights' header for inference (None: none, 0.5)."""
 
 
 def batch_loss(model: AFNet, samples: list[Sample], w_map: float = 1.0, w_nft: float = 1.0
@@ -137,6 +142,12 @@ class AFNetTrainer(TrainingRun):
             model_cfg, start_state, self.init_record = _initial_weights(Path(s.init_from), s.model.audio)
         elif checkpoint is not None:
             self.init_record = previous_init_record(self.run_dir / "run.json")
+        if s.stride is not None:
+            from dataclasses import replace
+
+            model_cfg = replace(model_cfg, stride=int(s.stride)).check()
+        if s.threshold is not None and not 0.0 < s.threshold < 1.0:
+            raise InputError(f"--threshold must be between 0 and 1, got {s.threshold}")
         self.run_dir.mkdir(parents=True, exist_ok=True)
         clips, self.report = load_training_clips(model_cfg, s.data, s.annotations, self.run_dir / "data_cache",
                                                  progress=progress)
@@ -177,7 +188,7 @@ class AFNetTrainer(TrainingRun):
                 "init_from": self.init_record, "training_data": self.report.to_dict()}
 
     def _export_weights(self, path: Path, training: dict) -> Path:
-        return export_weights(self.model, path, self.iteration, self.wall_time, training)
+        return export_weights(self.model, path, self.iteration, self.wall_time, training, self.settings.threshold)
 
 
 def _initial_weights(path: Path, audio: int) -> tuple[AFNetConfig, dict, dict]:
@@ -196,14 +207,18 @@ def _initial_weights(path: Path, audio: int) -> tuple[AFNetConfig, dict, dict]:
     return new, grow_state_dict(model.state_dict(), old, new), record
 
 
-def export_weights(model: AFNet, path: Path, iterations: int, wall_time_s: float, training: dict) -> Path:
-    """Write ``{"format", "header" (JSON text), "state_dict"}`` atomically, and the header as .json."""
+def export_weights(model: AFNet, path: Path, iterations: int, wall_time_s: float, training: dict,
+                   threshold: float | None = None) -> Path:
+    """Write ``{"format", "header" (JSON text), "state_dict"}`` atomically, and the header as .json.
+    threshold: the NFT probability inference uses by default (header ``threshold``; None: 0.5)."""
     cfg = model.config
     header = {"format": WEIGHTS_FORMAT, "architecture": "AFNet", "config": cfg.to_dict(),
               "parameters": model.parameter_count(), "engine_version": __version__,
               "receptive_field_frames": cfg.span, "iterations": int(iterations),
               "wall_time_s": round(float(wall_time_s), 1), "training": training,
               "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    if threshold is not None:
+        header["threshold"] = float(threshold)
     return save_weights(model, path, WEIGHTS_FORMAT, header)
 
 

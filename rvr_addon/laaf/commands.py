@@ -23,12 +23,13 @@ def _afnet_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--afnet-weights", type=Path, metavar="PATH",
                    help="AF-Net weights for --preset learned (rvr train-afnet's RUN/afnet.pt; default "
                         "rvr_addon/afnet/weights/afnet.pt)")
-    p.add_argument("--afnet-threshold", type=float, default=0.5, metavar="P",
-                   help="NFT probability an AF-Net peak must reach, 0..1 (default 0.5)")
+    p.add_argument("--afnet-threshold", type=float, default=None, metavar="P",
+                   help="NFT probability an AF-Net peak must reach, 0..1 (default: the weights' own threshold, 0.5 "
+                        "if they name none)")
 
 
 def _check_afnet(args: argparse.Namespace) -> None:
-    if not 0.0 < args.afnet_threshold < 1.0:
+    if args.afnet_threshold is not None and not 0.0 < args.afnet_threshold < 1.0:
         raise RvrError(f"--afnet-threshold must be between 0 and 1, got {args.afnet_threshold}")
 
 

@@ -161,7 +161,7 @@ def clip_input(folder: Path) -> Path:
 
 def score_run(folder: Path, manifest: dict, preset: str, causal: bool, pull: PullSettings,
               window_s: float = 2.0, max_dt: int | None = None, afnet_weights: Path | None = None,
-              afnet_threshold: float = 0.5) -> tuple[ClipScore, AutofocusResult]:
+              afnet_threshold: float | None = None) -> tuple[ClipScore, AutofocusResult]:
     """Run LAAF on one clip (ground-truth disparity) and score it."""
     fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
     settings = AutofocusSettings(input=clip_input(folder), depth=folder / "gt" / "disparity", preset=preset,
@@ -218,7 +218,7 @@ def _plot(path: Path, clip: str, runs: dict[str, tuple[ClipScore, ClipScore]]) -
 
 def evaluate(dataset: str | Path, out: str | Path, presets: list[str], pull: PullSettings | None = None,
              window_s: float = 2.0, progress: bool = True, afnet_weights: Path | None = None,
-             afnet_threshold: float = 0.5) -> dict:
+             afnet_threshold: float | None = None) -> dict:
     """Evaluate every preset, look-ahead and causal, on every clip; write the report folder
     (summary.json, report.md, one plot per clip). Returns the summary dict.
 

@@ -62,7 +62,7 @@ class AutofocusSettings:
     min_area: smallest focus region, as a fraction of the frame.
     keyframe_tol: the keyframes reproduce the track within this (disparity units).
     afnet_weights: AF-Net weights for preset 'learned' (None: rvr_addon/afnet/weights/afnet.pt).
-    afnet_threshold: NFT probability an AF-Net peak must reach (0..1).
+    afnet_threshold: NFT probability an AF-Net peak must reach (0..1; None: the weights' own, else 0.5).
     """
 
     input: Path
@@ -88,7 +88,7 @@ class AutofocusSettings:
     speech_window_s: float = 1.0
     keyframe_tol: float = 0.05
     afnet_weights: Path | None = None
-    afnet_threshold: float = 0.5
+    afnet_threshold: float | None = None
 
 
 @dataclass

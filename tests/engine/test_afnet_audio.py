@@ -198,3 +198,28 @@ def test_init_from_adds_audio_to_weights_without_it(tmp_path):
     with pytest.raises(InputError, match="--init-from starts a new run"):
         AFNetTrainer(AFNetTrainSettings(run_dir=second, annotations=[ann], iterations=2, resume=True,
                                         model=tiny_config(), init_from=first / "afnet.pt"))
+
+
+def test_inference_stride_and_threshold_travel_with_the_weights(tmp_path):
+    """--stride and --threshold are written into the weights (a --resume may change them: they
+    are inference settings) and the learned preset's detector uses them unless told otherwise."""
+    from afnet_synth import write_annotated_dataset
+    from rvr_addon.laaf.detectors.afnet import AFNetDetector
+
+    ann = write_annotated_dataset(tmp_path / "data", [8, None], n=24)
+    run = tmp_path / "run"
+    AFNetTrainer(AFNetTrainSettings(run_dir=run, annotations=[ann], iterations=2, checkpoint_every=2,
+                                    model=tiny_config())).run(progress=False)
+    _, header = load_afnet(run / "afnet.pt")
+    assert "threshold" not in header and header["config"]["stride"] == tiny_config().stride
+    assert AFNetDetector(run / "afnet.pt", 30, 24.0).threshold == 0.5
+    AFNetTrainer(AFNetTrainSettings(run_dir=run, annotations=[ann], iterations=2, resume=True, stride=1,
+                                    threshold=0.3, model=tiny_config())).run(progress=False)
+    model, header = load_afnet(run / "afnet.pt")
+    assert header["threshold"] == 0.3 and model.config.stride == 1
+    det = AFNetDetector(run / "afnet.pt", 30, 24.0)
+    assert det.threshold == 0.3 and det.stream.queries == list(range(30))
+    assert AFNetDetector(run / "afnet.pt", 30, 24.0, threshold=0.7).threshold == 0.7
+    with pytest.raises(InputError, match="--threshold must be between 0 and 1"):
+        AFNetTrainer(AFNetTrainSettings(run_dir=tmp_path / "bad", annotations=[ann], iterations=1, threshold=1.5,
+                                        model=tiny_config()))

@@ -28,19 +28,23 @@ class AFNetDetector(FocusDetector):
 
     weights: exported AF-Net weights (None: ``rvr_addon/afnet/weights/afnet.pt``). n_frames:
     clip length. fps: frame rate (sets min_gap to half a second unless given). threshold: the
-    NFT probability a peak must reach. media, start_frame: the clip file and its first analysed
-    frame, whose sound a network with an audio input hears (None: silence, said in the log).
+    NFT probability a peak must reach (None: the weights' header ``threshold``, else 0.5).
+    media, start_frame: the clip file and its first analysed frame, whose sound a network with
+    an audio input hears (None: silence, said in the log).
     Raises InputError (naming the path and how to make it) when the weights are missing."""
 
     name = "afnet"
 
-    def __init__(self, weights: str | Path | None, n_frames: int, fps: float, threshold: float = 0.5,
+    def __init__(self, weights: str | Path | None, n_frames: int, fps: float, threshold: float | None = None,
                  min_gap: int | None = None, media: str | Path | None = None, start_frame: int = 0) -> None:
         from ...afnet.infer import AFNetStream, load_afnet, nft_min_gap
 
         self.model, self.header = load_afnet(weights)
         self.config = self.model.config
         gap = nft_min_gap(fps) if min_gap is None else int(min_gap)
+        if threshold is None:
+            threshold = float(self.header.get("threshold", 0.5))
+        self.threshold = threshold
         audio = None
         self.heard = False
         if self.config.audio:
@@ -98,4 +102,5 @@ class AFNetDetector(FocusDetector):
         return {"frames": self._frames, "queries": len(probs), "nfts": self._nfts,
                 "max_p": round(max(probs.values()), 4) if probs else None,
                 "receptive_field_frames": self.config.span, "padded": self.stream.padded,
-                "audio": bool(self.config.audio), "heard_sound": self.heard}
+                "audio": bool(self.config.audio), "heard_sound": self.heard,
+                "threshold": self.threshold, "stride": self.config.stride}
