@@ -13,9 +13,20 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
+import torch
 
 from rvr_addon.afnet.annotations import AnnotatedClip, Annotation, write_annotations
 from rvr_addon.afnet.model import AFNetConfig
+
+@pytest.fixture(scope="module", autouse=True)
+def one_thread():
+    """Tiny convolutions: one torch thread is faster on the shared 2-core machine."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(old)
+
 
 W, H = 48, 32
 BOX_A = (4.0, 10.0, 10.0, 10.0)

@@ -139,7 +139,8 @@ def sound_variants(media: Path, fps: float, n: int, name: str) -> np.ndarray:
     rng = np.random.default_rng(int(hashlib.sha1(name.encode()).hexdigest()[:8], 16))
     peak_rms = float(np.sqrt(np.mean(samples[np.abs(samples) > 0.01 * np.abs(samples).max()] ** 2))) \
         if np.abs(samples).max() > 0 else 0.0
-    noisy = samples + rng.standard_normal(samples.size).astype(np.float32) * peak_rms * 10 ** (-rng.uniform(10, 30) / 20)
+    noise = rng.standard_normal(samples.size).astype(np.float32)
+    noisy = samples + noise * peak_rms * 10 ** (-rng.uniform(10, 30) / 20)  # 10-30 dB below the voice
     return np.stack([frame_features(samples, SAMPLE_RATE, fps, n), frame_features(noisy, SAMPLE_RATE, fps, n)])
 
 

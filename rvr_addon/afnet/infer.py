@@ -22,7 +22,8 @@ the focus goes, not the target before the change, which a map near the change st
 shows; on 11 harness clips the network had not seen, reading 10 frames after instead of 5
 halved the error of the focus read there, 0.51 -> 0.26 disparity units, at no extra latency:
 the peak's decision waits for later frames anyway): the part of the map above half its maximum
-that holds the maximum, its bounding box and probability-weighted centroid. :func:`predict_clip` runs a whole clip at once (tests, tools).
+that holds the maximum, its bounding box and probability-weighted centroid. :func:`predict_clip`
+runs a whole clip at once (tests, tools).
 """
 from __future__ import annotations
 

@@ -132,7 +132,8 @@ class AFNetTrainer(TrainingRun):
             raise InputError(f"--weak-weight, --w-map and --w-nft must be >= 0 (got {s.weak_weight}, {s.w_map}, "
                              f"{s.w_nft})")
         if s.resume and s.init_from is not None:
-            raise InputError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
+            raise InputError("--init-from starts a new run; --resume continues one from its checkpoint: "
+                             "give one of them")
         self._check_run_dir()
         checkpoint = self._load_checkpoint() if s.resume else None
         model_cfg = AFNetConfig.from_dict(json.loads(checkpoint["model_config"])) if checkpoint else s.model.check()

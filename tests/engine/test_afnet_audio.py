@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from afnet_synth import BOX_A, frames_of, tiny_config
+from afnet_synth import BOX_A, frames_of, one_thread, tiny_config  # noqa: F401 - one_thread: autouse fixture
 from rvr_addon.afnet.annotations import AnnotatedClip, Annotation, write_annotations
 from rvr_addon.afnet.audio_features import AUDIO_FEATURES, frame_features, noise_features, window
 from rvr_addon.afnet.infer import AFNetStream, load_afnet, predict_clip
@@ -22,14 +22,6 @@ from rvr_addon.io.video import ffmpeg_exe
 
 RATE = 16000
 FPS = 24.0
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 def voice(n_frames: int, start: int | None, seconds: float = 0.6, f0: float = 140.0, seed: int = 0) -> np.ndarray:

@@ -10,21 +10,13 @@ import numpy as np
 import pytest
 import torch
 
+from afnet_synth import one_thread  # noqa: F401 - autouse fixture
 from afnet_synth import frames_of, tiny_config, write_annotated_dataset, write_harness_clip, write_sequence
 from rvr_addon.afnet.infer import load_afnet, predict_clip
 from rvr_addon.afnet.train import AFNetTrainer, AFNetTrainSettings
 from rvr_addon.errors import InputError
 
 ENTERS = [8, 11, 14, 17, 20, 23, None, 10]
-
-
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """Tiny convolutions: one torch thread is faster on the shared 2-core machine."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(old)
 
 
 @pytest.fixture(scope="module")
