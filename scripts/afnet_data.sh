@@ -27,9 +27,10 @@ ITERATIONS=${ITERATIONS:-20000}
 THREADS=${THREADS:-1}
 AUDIO=${AUDIO:-1}             # 1: train with the clip's sound (--audio), 0: the paper's frames-only network
 HELDOUT=${HELDOUT:-out/afnet_heldout}
-# held-out clips (seed:script), never trained on: what the shipped weights' model card reports
-HELDOUT_CLIPS=(1001:random 1002:enter 1003:start-moving 1004:conversation 1005:conversation
-               1006:conversation 1007:enter 1008:start-moving 1009:conversation)
+# held-out clips (seed:script:frames:style), never trained on: what the shipped weights' model card reports
+HELDOUT_CLIPS=(1001:random:48:procedural 1002:enter:48:procedural 1003:start-moving:48:procedural
+               1004:conversation:72:photo 1005:conversation:72:photo 1006:conversation:72:photo
+               1007:enter:72:photo 1008:start-moving:72:photo 1009:conversation:72:photo)
 SCRIPTS=(enter start-moving conversation random)
 
 mkdir -p "$DATA"
@@ -63,15 +64,15 @@ AUDIO_ARGS=()
 nice -n 10 "$RVR" train-afnet --data "$DATA" "${ANN_ARGS[@]}" -o "$RUN" --iterations "$ITERATIONS" \
   --threads "$THREADS" "${AUDIO_ARGS[@]}" "${RESUME[@]}"
 
-# Held-out evaluation: AF-Net against the scene-specific presets on the same clips (72 frames,
-# 320x180, as the model card's figures).
+# Held-out evaluation: AF-Net against the scene-specific presets on the same clips (320x180, as
+# the model card's figures).
 mkdir -p "$HELDOUT"
 for item in "${HELDOUT_CLIPS[@]}"; do
-  seed=${item%%:*}; script=${item#*:}
+  IFS=: read -r seed script frames style <<< "$item"
   out="$HELDOUT/clip_${seed}_${script}"
   if [[ -f "$out/manifest.json" ]] && grep -q '"complete": true' "$out/manifest.json"; then continue; fi
-  nice -n 10 "$PY" -m sintel_eval generate --seed "$seed" --script "$script" --frames 72 --size 320x180 \
-    --no-dof -q -o "$out" || echo "held-out clip $seed ($script) failed; re-run to resume it" >&2
+  nice -n 10 "$PY" -m sintel_eval generate --seed "$seed" --script "$script" --frames "$frames" --size 320x180 \
+    --style "$style" --no-dof -q -o "$out" || echo "held-out clip $seed ($script) failed; re-run to resume it" >&2
 done
 "$RVR" eval-focus "$HELDOUT" -o "$RUN/eval_heldout" --presets action conversation learned \
   --afnet-weights "$RUN/afnet.pt"
