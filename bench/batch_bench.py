@@ -129,9 +129,10 @@ def main() -> int:
         tmp = Path(tmp)
         clips = make_clips(args.clip, args.clips, args.frames, size, tmp / "clips")
         weights = args.weights
-        shipped = ROOT / "rvr_addon" / "estimate" / "weights" / "estimator.pt"
-        if weights is None and shipped.is_file():
-            weights = shipped
+        from rvr_addon.estimate.infer import SHIPPED_WEIGHTS
+
+        if weights is None and SHIPPED_WEIGHTS.is_file():
+            weights = SHIPPED_WEIGHTS
         out["batch.untrained_weights"] = float(weights is None)
         if weights is None:
             import torch

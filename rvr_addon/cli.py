@@ -248,8 +248,6 @@ def cmd_train(args: argparse.Namespace) -> int:
     sup = (args.supervised_weight, args.w_disparity, args.w_disparity_grad, args.w_exponent, args.w_exponent_zero)
     if min(sup) < 0:
         raise RvrError(f"--supervised-weight and the --w-* weights must be >= 0, got {sup}")
-    if args.resume and args.init_from is not None:
-        raise RvrError("--init-from starts a new run; --resume continues one from its checkpoint: give one of them")
     set_torch_threads(args.threads)
     weights = LossWeights(smooth=args.w_smooth, supervised=args.supervised_weight, sup_disparity=args.w_disparity,
                           sup_disparity_grad=args.w_disparity_grad, sup_exponent=args.w_exponent,

@@ -170,8 +170,12 @@ class TrainingRun:
 
     # -- setup (called from the subclass's __init__) ----------------------------------------
     def _check_run_dir(self) -> None:
-        """Set the run-folder paths; refuse to overwrite a run or to resume a missing one."""
+        """Set the run-folder paths; refuse to overwrite a run, to resume a missing one, or to both
+        resume and start from other weights (``init_from``)."""
         s = self.settings
+        if s.resume and getattr(s, "init_from", None) is not None:
+            raise InputError("--init-from starts a new run; --resume continues one from its checkpoint: "
+                             "give one of them")
         self.run_dir = Path(s.run_dir)
         self.checkpoint_path = self.run_dir / "checkpoint.pt"
         self.log_path = self.run_dir / "loss_log.csv"

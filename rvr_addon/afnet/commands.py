@@ -71,8 +71,7 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
         w, h = (int(v) for v in args.size.lower().split("x"))
         config = AFNetConfig(width=w, height=h, rgb=not args.gray, disparity=not args.no_disparity, f_t=args.f_t,
                              s=args.units, sample_step=args.sample_step,
-                             stride=args.stride if args.stride is not None else AFNetConfig().stride,
-                             audio=AUDIO_FEATURES if args.audio else 0).check()
+                             audio=AUDIO_FEATURES if args.audio else 0).check()  # --stride: via the settings
     except ValueError as ex:
         raise RvrError(f"--size/--f-t/--units/--sample-step/--stride: {ex}") from None
     set_torch_threads(args.threads)

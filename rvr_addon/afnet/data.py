@@ -49,6 +49,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.paths import temp_sibling
 from .annotations import AnnotatedClip
+from .audio_features import AUDIO_FEATURES, frame_features, noise_features, window
 from .model import DISPARITY_CODE_SCALE, AFNetConfig, encode_frame
 
 log = logging.getLogger(__name__)
@@ -126,17 +127,21 @@ def _box_ok(box) -> bool:
     return box is not None and len(box) == 4 and all(np.isfinite(box)) and box[2] >= 1 and box[3] >= 1
 
 
+def _name_rng(name: str) -> np.random.Generator:
+    """A generator seeded by a clip's name: its noise variants are the same in every run."""
+    return np.random.default_rng(int(hashlib.sha1(name.encode()).hexdigest()[:8], 16))
+
+
 def sound_variants(media: Path, fps: float, n: int, name: str) -> np.ndarray:
     """(V, n, AUDIO_FEATURES) audio variants of a clip (module docstring): clean and with a noise
     floor when ``media`` has sound, else an empty (0, n, F) array."""
     from ..laaf.audio import SAMPLE_RATE, NoAudio, decode_audio
-    from .audio_features import AUDIO_FEATURES, frame_features
 
     try:
         samples = decode_audio(media, duration_s=n / fps)
     except NoAudio:
         return np.zeros((0, n, AUDIO_FEATURES), np.float32)
-    rng = np.random.default_rng(int(hashlib.sha1(name.encode()).hexdigest()[:8], 16))
+    rng = _name_rng(name)
     peak_rms = float(np.sqrt(np.mean(samples[np.abs(samples) > 0.01 * np.abs(samples).max()] ** 2))) \
         if np.abs(samples).max() > 0 else 0.0
     noise = rng.standard_normal(samples.size).astype(np.float32)
@@ -398,12 +403,10 @@ class TrainingSet:
         self.with_nfts = [i for i, c in enumerate(clips) if c.nfts]
         self.audio: list[np.ndarray] = []
         if config.audio:
-            from .audio_features import AUDIO_FEATURES, noise_features
-
             for c in clips:
                 a = c.audio if c.audio is not None and len(c.audio) else None
                 if a is None:  # silence, and two noise backgrounds
-                    rng = np.random.default_rng(int(hashlib.sha1(c.name.encode()).hexdigest()[:8], 16))
+                    rng = _name_rng(c.name)
                     a = np.stack([np.zeros((c.n, AUDIO_FEATURES), np.float32)]
                                  + [noise_features(c.n, c.fps, rng) for _ in range(2)])
                 self.audio.append(a.astype(np.float32))
@@ -452,8 +455,6 @@ class TrainingSet:
         weight = self.weak_weight if clip.weak else 1.0
         audio = np.zeros((0, 0), np.float32)
         if cfg.audio:
-            from .audio_features import window
-
             variants = self.audio[ci]
             audio = window(variants[int(rng.integers(len(variants)))], c, cfg.half_span, cfg.audio)
         return Sample(np.ascontiguousarray(x, dtype=np.float32), target, valid,

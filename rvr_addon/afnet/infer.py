@@ -39,6 +39,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from .audio_features import window
 from .model import AFNet, AFNetConfig, decode_frames, map_to_prob
 
 log = logging.getLogger(__name__)
@@ -243,8 +244,6 @@ class AFNetStream:
             x = np.stack([self._frame(c + int(o)) for o in self._unit_frames])[None]
             audio = None
             if self.config.audio:
-                from .audio_features import window
-
                 half = int(self._unit_frames[-1])
                 cols = window(self.audio, c, half, self.config.audio)[:, self._unit_frames + half]
                 audio = torch.from_numpy(np.ascontiguousarray(cols.T))[None]
@@ -264,8 +263,6 @@ class AFNetStream:
             feats = torch.stack([self._unit(q + int(o)) for o in cfg.unit_offsets])[None]
             audio = None
             if cfg.audio:
-                from .audio_features import window
-
                 audio = torch.from_numpy(window(self.audio, q, cfg.half_span, cfg.audio))[None]
             with torch.inference_mode():
                 self.probs[q] = float(torch.sigmoid(self.model.head(feats, audio))[0])

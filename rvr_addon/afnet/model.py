@@ -33,7 +33,7 @@ network with ``audio = 0`` is the paper's and has the same weights as before aud
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 import torch
@@ -354,8 +354,6 @@ def grow_state_dict(state: dict[str, torch.Tensor], old: AFNetConfig, new: AFNet
     input columns, so the grown network predicts exactly what the old one did until training
     moves them; the audio branch keeps its fresh initialisation (missing from the result).
     Raises ValueError for any other difference."""
-    from dataclasses import replace
-
     if old == new:
         return dict(state)
     if old.audio or replace(old, audio=new.audio) != new:

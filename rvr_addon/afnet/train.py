@@ -33,7 +33,7 @@ from __future__ import annotations
 import csv
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +44,7 @@ from .. import __version__
 from ..errors import InputError, RvrError
 from ..training_run import TrainingRun, previous_init_record, save_png, save_weights
 from .data import Sample, TrainingSet, load_training_clips
-from .model import AFNet, AFNetConfig
+from .model import AFNet, AFNetConfig, grow_state_dict
 
 CHECKPOINT_FORMAT = "rvr-laaf-afnet-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
@@ -131,9 +131,8 @@ class AFNetTrainer(TrainingRun):
         if s.weak_weight < 0 or s.w_map < 0 or s.w_nft < 0:
             raise InputError(f"--weak-weight, --w-map and --w-nft must be >= 0 (got {s.weak_weight}, {s.w_map}, "
                              f"{s.w_nft})")
-        if s.resume and s.init_from is not None:
-            raise InputError("--init-from starts a new run; --resume continues one from its checkpoint: "
-                             "give one of them")
+        if s.threshold is not None and not 0.0 < s.threshold < 1.0:
+            raise InputError(f"--threshold must be between 0 and 1, got {s.threshold}")
         self._check_run_dir()
         checkpoint = self._load_checkpoint() if s.resume else None
         model_cfg = AFNetConfig.from_dict(json.loads(checkpoint["model_config"])) if checkpoint else s.model.check()
@@ -144,11 +143,10 @@ class AFNetTrainer(TrainingRun):
         elif checkpoint is not None:
             self.init_record = previous_init_record(self.run_dir / "run.json")
         if s.stride is not None:
-            from dataclasses import replace
-
-            model_cfg = replace(model_cfg, stride=int(s.stride)).check()
-        if s.threshold is not None and not 0.0 < s.threshold < 1.0:
-            raise InputError(f"--threshold must be between 0 and 1, got {s.threshold}")
+            try:
+                model_cfg = replace(model_cfg, stride=int(s.stride)).check()
+            except ValueError as ex:
+                raise InputError(f"--stride: {ex}") from None
         self.run_dir.mkdir(parents=True, exist_ok=True)
         clips, self.report = load_training_clips(model_cfg, s.data, s.annotations, self.run_dir / "data_cache",
                                                  progress=progress)
@@ -195,10 +193,7 @@ class AFNetTrainer(TrainingRun):
 def _initial_weights(path: Path, audio: int) -> tuple[AFNetConfig, dict, dict]:
     """(config, state dict, record for run.json) of a new run from the AF-Net weights in ``path``,
     grown by the audio input when ``audio`` is asked and the weights lack it."""
-    from dataclasses import replace
-
     from .infer import load_afnet
-    from .model import grow_state_dict
 
     model, header = load_afnet(path)
     old = model.config

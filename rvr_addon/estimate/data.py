@@ -69,7 +69,7 @@ import math
 import os
 import re
 from collections import Counter
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable
 
@@ -413,8 +413,7 @@ def harness_sources(root: str | Path, report: SkipReport, ignore_prints: bool = 
             if train.is_dir() else []
         ignore = print_ids(manifest) if ignore_prints else ()
         if not sidecars:
-            sources += [replace(src, unsupervised_ids=ignore)
-                        for src in _ground_truth_sources(clip, manifest, config_hash, width, report)]
+            sources += _ground_truth_sources(clip, manifest, config_hash, width, report, ignore)
             continue
         for sidecar in sidecars:
             frame = int(_SIDECAR.search(sidecar.name).group(1))
@@ -423,14 +422,14 @@ def harness_sources(root: str | Path, report: SkipReport, ignore_prints: bool = 
                 report.add("incomplete frame", f"training frame {frame} of {clip} is incomplete ({reason}); skipped")
                 continue
             try:
-                sources.append(replace(_harness_source(clip, frame, sidecar, width), unsupervised_ids=ignore))
+                sources.append(_harness_source(clip, frame, sidecar, width, ignore))
             except (InputError, OSError, ValueError) as ex:
                 report.add("bad sidecar", f"training frame {frame} of {clip}: {ex}; skipped")
     return sources
 
 
 def _ground_truth_sources(clip: Path, manifest: dict, config_hash: str | None, width: int | None,
-                          report: SkipReport) -> list[SampleSource]:
+                          report: SkipReport, unsupervised_ids: tuple[int, ...] = ()) -> list[SampleSource]:
     """Kind ``gt`` sources: every complete frame of a clip without training sidecars that has
     its input, ``gt/disparity`` and ``gt/hdr``."""
     frames = int((manifest.get("config") or {}).get("frames") or 0)
@@ -446,14 +445,15 @@ def _ground_truth_sources(clip: Path, manifest: dict, config_hash: str | None, w
             report.add("incomplete frame", f"frame {frame} of {clip} is incomplete ({reason}); skipped")
             continue
         found.append(SampleSource(f"{clip.name}/frame_{frame:05d}", "harness", inp, {},
-                                  width or _image_width(inp), {}, gt_d, gt_h))
+                                  width or _image_width(inp), {}, gt_d, gt_h, unsupervised_ids))
     if not found:
         report.add("clip without training frames", f"clip {clip} has neither training sidecars nor complete "
                    "ground-truth frames; skipped")
     return found
 
 
-def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None) -> SampleSource:
+def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None,
+                    unsupervised_ids: tuple[int, ...] = ()) -> SampleSource:
     rec = json.loads(sidecar.read_text())
     inp = clip / str(rec.get("input", f"input/frame_{frame:05d}.png"))
     if not inp.is_file():
@@ -469,7 +469,7 @@ def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None) ->
     gt_h = clip / "gt" / "hdr" / f"frame_{frame:05d}.exr"
     return SampleSource(f"{clip.name}/frame_{frame:05d}", "harness", inp, members, width,
                         {"aperture": aperture, "focal": focal},
-                        gt_d if gt_d.is_file() else None, gt_h if gt_h.is_file() else None)
+                        gt_d if gt_d.is_file() else None, gt_h if gt_h.is_file() else None, unsupervised_ids)
 
 
 def _image_width(path: Path) -> int:
