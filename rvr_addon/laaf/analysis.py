@@ -138,7 +138,9 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     from .detectors.speech import SpeechDetector
 
     face = None
-    if "face" in names or "speech" in names:
+    clip = setup.clip
+    speaker = ("afnet" in names and s.afnet_speaker and clip.kind == "video" and clip.has_audio)
+    if "face" in names or "speech" in names or speaker:
         face = FaceDetector(backend=s.face_backend, every=s.face_every)
         detectors["face"] = face
     if "saliency" in names:
@@ -146,8 +148,15 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     if "action" in names:
         detectors["action"] = ActionDetector()
     preset_used, note = s.preset, ""
+    if speaker:  # AF-Net's NFTs take their region from the speaker where someone speaks (lookahead)
+        media = clip.path if whole_clip else None
+        speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
+                                window_s=s.speech_window_s, causal=causal)
+        if speech.available or not whole_clip:
+            detectors["speech"] = speech
+        else:
+            del detectors["face"]
     if "speech" in names:
-        clip = setup.clip
         media = clip.path if clip.kind == "video" and clip.has_audio and whole_clip else None
         speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
                                 window_s=s.speech_window_s, causal=causal)

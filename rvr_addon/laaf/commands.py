@@ -19,13 +19,18 @@ def _pull_args(p: argparse.ArgumentParser) -> None:
                    help="after a subject is lost, hold its focus this long before releasing (default 12)")
 
 
-def _afnet_args(p: argparse.ArgumentParser) -> None:
+def _afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
     p.add_argument("--afnet-weights", type=Path, metavar="PATH",
                    help="AF-Net weights for --preset learned (rvr train-afnet's RUN/afnet.pt; default "
                         "rvr_addon/afnet/weights/afnet.pt)")
     p.add_argument("--afnet-threshold", type=float, default=None, metavar="P",
                    help="NFT probability an AF-Net peak must reach, 0..1 (default: the weights' own threshold, 0.5 "
                         "if they name none)")
+    if not region:
+        return
+    p.add_argument("--afnet-region", choices=("speaker", "map"), default="speaker",
+                   help="where an AF-Net NFT focuses: speaker (default: where someone speaks, the speaker the speech "
+                        "detector localises; elsewhere AF-Net's map) or map (always AF-Net's map, the paper's)")
 
 
 def _check_afnet(args: argparse.Namespace) -> None:
@@ -92,7 +97,7 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         depth_offset=args.depth_offset, preset=args.preset, targets=args.targets, window_s=args.window,
         causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
         min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
-        afnet_threshold=args.afnet_threshold)
+        afnet_threshold=args.afnet_threshold, afnet_speaker=args.afnet_region == "speaker")
     job = AutofocusJob(settings)
     with on_interrupt("autofocus", lambda: "cancelled; nothing written"):
         result = job.run(progress=not args.quiet)
@@ -136,7 +141,7 @@ def plot_focus(path: Path, result) -> None:
 
 def add_eval_focus_parser(sub) -> None:
     """``rvr eval-focus DATASET -o REPORT [--presets ...]``."""
-    from .combine import PRESETS
+    from .evaluate import EVAL_PRESETS
 
     p = sub.add_parser("eval-focus", help="evaluate LAAF on harness clips (mean |dt|, mean |dd|)",
                        description="Run look-ahead and causal LAAF per preset on each harness clip (ground-truth "
@@ -144,9 +149,10 @@ def add_eval_focus_parser(sub) -> None:
                                    "summary.json, report.md and focus plots in REPORT.")
     p.add_argument("dataset", type=Path, help="folder of harness clips (or one clip)")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="REPORT", help="report folder")
-    p.add_argument("--presets", nargs="+", choices=tuple(PRESETS), default=["action", "conversation"],
-                   help="presets to evaluate on the same clips (default action conversation; add learned for AF-Net)")
-    _afnet_args(p)
+    p.add_argument("--presets", nargs="+", choices=EVAL_PRESETS, default=["action", "conversation"],
+                   help="presets to evaluate on the same clips (default action conversation; add learned for AF-Net, "
+                        "learned-map for AF-Net with every region from its own map)")
+    _afnet_args(p, region=False)
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
     _pull_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

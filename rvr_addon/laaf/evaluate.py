@@ -26,7 +26,9 @@ would react to. For each clip and preset, LAAF runs twice on the ground-truth di
 - Preset ``learned`` (AF-Net, paper section 5.3, Table 2) is made for every kind of clip, so
   its headline keys pool all clips; compare them with the presets' ``.all`` keys (the same
   clips). A clip without ground-truth NFTs adds frames to |delta d| and nothing to |delta t|.
-  Its weights come from ``afnet_weights`` (checked once, before any clip runs).
+  Its weights come from ``afnet_weights`` (checked once, before any clip runs). ``learned``
+  takes an NFT's region from the speaker where someone speaks (``afnet_speaker``);
+  ``learned-map`` is the same network with every region from AF-Net's own map (the paper's).
 """
 from __future__ import annotations
 
@@ -38,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .combine import PRESETS
 from .lookahead import AutofocusJob, AutofocusResult, AutofocusSettings
 from .puller import PullSettings, PullTarget, compose_track
 
@@ -45,7 +48,11 @@ log = logging.getLogger(__name__)
 
 PRESET_SCRIPTS = {"action": ("enter", "start-moving"), "conversation": ("conversation",),
                   "faces": ("conversation",), "salient": ("enter", "start-moving"),
-                  "learned": ("enter", "start-moving", "conversation", "random")}
+                  "learned": ("enter", "start-moving", "conversation", "random"),
+                  "learned-map": ("enter", "start-moving", "conversation", "random")}
+VARIANTS = {"learned-map": ("learned", {"afnet_speaker": False})}
+"""Evaluation-only names: (preset, AutofocusSettings overrides)."""
+EVAL_PRESETS = (*PRESETS, *VARIANTS)
 
 
 @dataclass
@@ -164,9 +171,10 @@ def score_run(folder: Path, manifest: dict, preset: str, causal: bool, pull: Pul
               afnet_threshold: float | None = None) -> tuple[ClipScore, AutofocusResult]:
     """Run LAAF on one clip (ground-truth disparity) and score it."""
     fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
-    settings = AutofocusSettings(input=clip_input(folder), depth=folder / "gt" / "disparity", preset=preset,
+    base, overrides = VARIANTS.get(preset, (preset, {}))
+    settings = AutofocusSettings(input=clip_input(folder), depth=folder / "gt" / "disparity", preset=base,
                                  window_s=window_s, causal=causal, pull=pull, fps=fps, afnet_weights=afnet_weights,
-                                 afnet_threshold=afnet_threshold)
+                                 afnet_threshold=afnet_threshold, **overrides)
     result = AutofocusJob(settings).run(progress=False)
     gt = ground_truth(manifest, pull)
     n = min(len(gt.focus), len(result.focus))
@@ -226,7 +234,7 @@ def evaluate(dataset: str | Path, out: str | Path, presets: list[str], pull: Pul
     weights (``afnet_weights``, default the shipped ones) are missing."""
     from tqdm import tqdm
 
-    if "learned" in presets:
+    if any(VARIANTS.get(p, (p,))[0] == "learned" for p in presets):
         from ..afnet.infer import load_afnet
 
         load_afnet(afnet_weights)  # fail now, naming the path and the command that makes it

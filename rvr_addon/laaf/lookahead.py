@@ -63,6 +63,9 @@ class AutofocusSettings:
     keyframe_tol: the keyframes reproduce the track within this (disparity units).
     afnet_weights: AF-Net weights for preset 'learned' (None: rvr_addon/afnet/weights/afnet.pt).
     afnet_threshold: NFT probability an AF-Net peak must reach (0..1; None: the weights' own, else 0.5).
+    afnet_speaker: preset 'learned' on a clip with sound: an NFT where someone speaks takes its
+    region from the speaker the speech detector localises (mouth motion or audio-visual
+    synchrony) instead of AF-Net's map; False: always the map (the paper's AF-Net alone).
     """
 
     input: Path
@@ -89,6 +92,7 @@ class AutofocusSettings:
     keyframe_tol: float = 0.05
     afnet_weights: Path | None = None
     afnet_threshold: float | None = None
+    afnet_speaker: bool = True
 
 
 @dataclass
@@ -400,11 +404,65 @@ class AutofocusJob:
             return
         if any(abs(n.t - t) < self.settings.pull.pull_frames for n in self.manual):
             return  # the user wins
+        source, subject = "afnet", None
+        spoken = self._speaker_region(t)
+        if spoken is not None:
+            q, region, subject = spoken
+            source = "afnet+speech"
         t_box = min(max(q, self.buffer[0].t), self.buffer[-1].t)  # the region's frame, kept in the buffer
+        if self._same_target(region, t, t_box):
+            log.debug("AF-Net NFT at frame %d focuses the subject already in focus: skipped", t)
+            return
         known_at = max(0, ingest - self.window)
-        nft = self._nft_from_region(region, t, "afnet", known_at, None)
+        nft = self._nft_from_region(region, t, source, known_at, subject)
         nft = replace(nft, confidence=round(float(p), 4), detail={"p": round(float(p), 4), "region_frame": int(q)})
         self._add_target(nft, region.box, t_box, ingest, mask=region.mask)
+
+    def _same_target(self, region: Region, t: int, t_box: int) -> bool:
+        """True when a region at frame t_box is the subject the target before t already holds
+        there: its box overlapping that target's tracked box and its focus within ``min_step``
+        of that target's level (an NFT that would not move the focus is none)."""
+        before = [tg for tg in self.targets if tg.nft.t < t]
+        if not before:
+            return False
+        tg = before[-1]
+        tracked = tg.boxes.get(t_box)
+        level = float(tg.level[t_box])
+        if tracked is None or not tracked[1] or not math.isfinite(level):
+            return False
+        x, y, w, h = tracked[0]
+        rx, ry, rw, rh = region.box
+        if rx >= x + w or x >= rx + rw or ry >= y + h or y >= ry + rh:
+            return False
+        value = self._read(self._frame(t_box), region.box, region.mask, prior=level)
+        return abs(value - level) < self.settings.min_step
+
+    def _speaker_region(self, t: int) -> tuple[int, Region, str | None] | None:
+        """(frame, region, face track id) of the speaker at an AF-Net NFT at t, or None.
+
+        Preset 'learned' with a speech detector (``afnet_speaker``, a clip with sound): of the
+        voiced frames t .. t + REGION_LAG_FRAMES still in the buffer, the speaker the speech
+        detector localises with the highest correlation (its window is centred there, so it
+        hears the new turn, not the one before). AF-Net knows *when* the speaker changes, but
+        seeing every 5th frame at 128 x 72 px it often cannot tell *whose* mouth moves."""
+        from ..afnet.infer import REGION_LAG_FRAMES
+
+        speech = self.detectors.get("speech")
+        if speech is None or not speech.available or not self.buffer:
+            return None
+        best = None
+        for k in range(max(t, self.buffer[0].t), min(t + REGION_LAG_FRAMES, self.buffer[-1].t) + 1):
+            box, corr, tid = speech.decide(k)
+            if box is not None and (best is None or corr > best[1]):
+                best = (k, corr, box, tid)
+        if best is None:
+            return None
+        k, _, box, tid = best
+        h, w = self._frame(k).gray.shape
+        x, y, bw, bh = box
+        mask = np.zeros((h, w), bool)
+        mask[max(int(round(y)), 0):int(round(y + bh)), max(int(round(x)), 0):int(round(x + bw))] = True
+        return k, Region(x + bw / 2, y + bh / 2, box, mask, float(mask.mean()), ("afnet", "speech")), tid
 
     # -- targets and tracking -----------------------------------------------------------------
     def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:
@@ -501,7 +559,7 @@ class AutofocusJob:
                 tracking.append({"target": i, **ev})
         metrics = {n: d.metrics() for n, d in self.detectors.items()}
         fallback = self.fallback_note
-        if self._combo and "face" in self.detectors and not self.detectors["face"].metrics()["frames_with_faces"]:
+        if "face" in self._combo and not self.detectors["face"].metrics()["frames_with_faces"]:
             sync = int(metrics.get("speech", {}).get("synchrony_frames", 0)) if "speech" in self._combo else 0
             if sync:
                 fallback = fallback or (f"no face was found; the {s.preset} preset used the speech detector's "
