@@ -2,7 +2,10 @@
 installer into a temporary user directory, enabled, and used end to end on a tiny clip:
 Analyze -> Add Focus Target -> Auto Focus -> Render; F-curves and the result strip checked.
 
-Runs in a child Python (the bpy module reads its user directories once, at import).
+Runs in a child Python (the bpy module reads its user directories once, at import) that sees
+only what a Blender install ships (bpy, numpy, requests and its helpers, zstandard: links in a
+temporary folder, ``python -S`` without the venv's site-packages), so the extension's own
+wheels must provide OpenCV, OpenEXR, tqdm and imageio-ffmpeg.
 Needs the wheels (scripts/fetch_wheels.sh); skipped with that advice when they are missing.
 """
 from __future__ import annotations
@@ -61,6 +64,25 @@ print("RESULT " + json.dumps(result))
 '''
 
 
+BLENDER_BUNDLES = ("bpy", "numpy", "numpy.libs", "requests", "urllib3", "idna", "certifi", "charset_normalizer",
+                   "zstandard")
+"""Python packages a Blender 5.0 install ships in its own Python (what an extension may assume)."""
+
+
+def blender_like_site(folder: Path) -> Path:
+    """A folder of links to the BLENDER_BUNDLES packages (and their dist-info) of this Python."""
+    import numpy
+
+    site = Path(numpy.__file__).resolve().parents[1]
+    assert (site / "bpy").is_dir(), f"bpy is not installed beside numpy in {site}"
+    folder.mkdir()
+    for entry in site.iterdir():
+        name = entry.name.split("-")[0]
+        if entry.name in BLENDER_BUNDLES or (entry.name.endswith(".dist-info") and name in BLENDER_BUNDLES):
+            (folder / entry.name).symlink_to(entry)
+    return folder
+
+
 def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
     missing = build_extension.missing_wheels()
     if missing:
@@ -68,16 +90,18 @@ def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
     zip_path = build_extension.build(tmp_path / "dist")
     user = tmp_path / "user"
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(user), "BLENDER_USER_CONFIG": str(user / "config"),
-           "BLENDER_USER_SCRIPTS": str(user / "scripts"), "BLENDER_USER_EXTENSIONS": str(user / "extensions")}
+           "BLENDER_USER_SCRIPTS": str(user / "scripts"), "BLENDER_USER_EXTENSIONS": str(user / "extensions"),
+           "PYTHONPATH": str(blender_like_site(tmp_path / "blender_site")), "PYTHONNOUSERSITE": "1"}
     work = tmp_path / "work"
     work.mkdir()
-    done = subprocess.run([sys.executable, "-c", SCRIPT, str(zip_path), str(vse_clip), str(vse_depth), str(work)],
+    done = subprocess.run([sys.executable, "-S", "-c", SCRIPT, str(zip_path), str(vse_clip), str(vse_depth), str(work)],
                           capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
     assert done.returncode == 0 and lines, done.stdout[-3000:] + done.stderr[-3000:]
     r = json.loads(lines[-1][len("RESULT "):])
     assert r["enabled"] and r["prefs"] == "RVR_AP_preferences"
     assert Path(r["module_file"]).is_relative_to(user / "extensions")  # the installed copy, not the repository
+    assert Path(r["cv2"]).is_relative_to(user / "extensions")  # OpenCV from the extension's wheels
     assert r["analyze"] == r["add"] == r["autofocus"] == r["render"] == ["FINISHED"]
     keys = r["fcurves"]['sequence_editor.strips_all["Clip"].rvr.focus_disparity']
     assert len(keys) >= 2 and all(1 <= f <= 12 for f, _ in keys)
