@@ -115,3 +115,26 @@ def fake_faces(self, gray: np.ndarray) -> list[tuple[float, float, float, float]
     shift = float(gray[h // 2, :8].mean() % 5)
     boxes = [(w * 0.28 - 15 + shift, h / 2 - 18, 30.0, 36.0), (w * 0.72 - 15 - shift, h / 2 - 18, 30.0, 36.0 + shift)]
     return boxes[: 1 + int(gray[0, 0]) % 2 + (shift > 1)]
+
+
+def laaf_outcome(result) -> dict:
+    """Everything an AutofocusResult decides (not its timings)."""
+    return {"keys": [(k.frame, k.focus, k.aperture) for k in result.keys], "focus": result.focus.tolist(),
+            "aperture": result.aperture.tolist(), "nfts": result.nfts, "tracking": result.tracking,
+            "raw": np.nan_to_num(result.signal["raw"], nan=-99).tolist(),
+            "held": np.nan_to_num(result.signal["held"], nan=-99).tolist(), "boxes": result.boxes,
+            "detectors": {n: {k: v for k, v in m.items() if not k.startswith("s_per")}
+                          for n, m in result.detectors.items()}}
+
+
+def chunked_laaf(settings, folder: Path, n: int, chunk: int):
+    """LAAF measured in chunks (files written and read back), decided in one AutofocusJob."""
+    from rvr_addon.batch.chunks import chunk_ranges
+    from rvr_addon.laaf.analysis import measure_range, read_measurements, write_measurements
+    from rvr_addon.laaf.lookahead import AutofocusJob
+
+    files = []
+    for a, b in chunk_ranges(n, chunk):
+        files.append(folder / f"analysis_{a:06d}.pkl")
+        assert write_measurements(files[-1], {"range": (a, b)}, measure_range(settings, a, b)) == b - a
+    return AutofocusJob(settings, frames=read_measurements(files)).run(progress=False)

@@ -106,3 +106,17 @@ def test_map_only_drops_an_nft_on_the_subject_already_in_focus(talking):
     head0 = np.array([ramp_at(head_box(0, k)) for k in range(N)])
     assert np.abs(result.focus - head0).max() <= 0.5  # head 0 all along, tracked as the camera pans
 
+
+
+def test_measured_in_chunks_equals_one_pass(talking, tmp_path):
+    """``rvr batch`` measures faces, mouths and synchrony in chunks (of 9 frames here) and decides
+    in one job: the speaker's NFT comes out the same."""
+    from batch_synth import chunked_laaf, laaf_outcome
+    from rvr_addon.laaf.lookahead import AutofocusJob, AutofocusSettings
+
+    settings = AutofocusSettings(input=talking[0], depth=talking[1], preset="learned", face_backend="haar")
+    one = AutofocusJob(settings).run(progress=False)
+    assert [n.source for n in one.nfts[1:]] == ["afnet+speech"]
+    (tmp_path / "work").mkdir()
+    chunked = chunked_laaf(settings, tmp_path / "work", N, 9)
+    assert laaf_outcome(chunked) == laaf_outcome(one)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from batch_synth import N, KillOnce, make_clip, make_depth, untrained_weights
+from batch_synth import N, KillOnce, chunked_laaf, laaf_outcome, make_clip, make_depth, untrained_weights
 from rvr_addon.batch.chunks import chunk_ranges, stabilize_reads
 from rvr_addon.batch.graph import run_batch
 from rvr_addon.batch.inputs import clip_names, collect_clips
@@ -212,28 +212,6 @@ def test_analysis_chunks_read_the_frame_before_and_the_last_face_detection():
     assert analysis_start(17, None) == 16  # no face detector: only the frame before
 
 
-def _laaf_outcome(result) -> dict:
-    """Everything an AutofocusResult decides (not its timings)."""
-    return {"keys": [(k.frame, k.focus, k.aperture) for k in result.keys], "focus": result.focus.tolist(),
-            "aperture": result.aperture.tolist(), "nfts": result.nfts, "tracking": result.tracking,
-            "raw": np.nan_to_num(result.signal["raw"], nan=-99).tolist(),
-            "held": np.nan_to_num(result.signal["held"], nan=-99).tolist(), "boxes": result.boxes,
-            "detectors": {n: {k: v for k, v in m.items() if not k.startswith("s_per")}
-                          for n, m in result.detectors.items()}}
-
-
-def _chunked_laaf(settings, folder: Path, n: int, chunk: int):
-    """LAAF measured in chunks (files written and read back), decided in one AutofocusJob."""
-    from rvr_addon.laaf.analysis import measure_range, read_measurements, write_measurements
-    from rvr_addon.laaf.lookahead import AutofocusJob
-
-    files = []
-    for a, b in chunk_ranges(n, chunk):
-        files.append(folder / f"analysis_{a:06d}.pkl")
-        assert write_measurements(files[-1], {"range": (a, b)}, measure_range(settings, a, b)) == b - a
-    return AutofocusJob(settings, frames=read_measurements(files)).run(progress=False)
-
-
 def test_laaf_measured_in_chunks_equals_one_pass_action(tmp_path):
     """Action + saliency (optical flow, decaying motion memory) on a PNG sequence, chunks of 7."""
     from laaf_synth import entering_square, write_clip
@@ -243,9 +221,9 @@ def test_laaf_measured_in_chunks_equals_one_pass_action(tmp_path):
     fdir, ddir = write_clip(tmp_path, frames, maps)
     settings = AutofocusSettings(input=fdir, depth=ddir, preset="action", fps=24)
     one = AutofocusJob(settings).run(progress=False)
-    chunked = _chunked_laaf(settings, tmp_path / "work", 40, 7)
+    chunked = chunked_laaf(settings, tmp_path / "work", 40, 7)
     assert len(one.nfts) >= 2 and one.detectors["action"]["homography_failures"] >= 0
-    assert _laaf_outcome(chunked) == _laaf_outcome(one)
+    assert laaf_outcome(chunked) == laaf_outcome(one)
 
 
 def test_laaf_measured_in_chunks_equals_one_pass_conversation(tmp_path, monkeypatch):
@@ -263,5 +241,5 @@ def test_laaf_measured_in_chunks_equals_one_pass_conversation(tmp_path, monkeypa
     m = one.detectors
     assert m["speech"]["available"] and m["speech"]["speaker_frames"] > 0 and m["face"]["face_tracks"] >= 2
     assert one.settings["preset_used"] == "conversation" and len(one.nfts) >= 2
-    chunked = _chunked_laaf(settings, tmp_path / "work", 40, 7)
-    assert _laaf_outcome(chunked) == _laaf_outcome(one)
+    chunked = chunked_laaf(settings, tmp_path / "work", 40, 7)
+    assert laaf_outcome(chunked) == laaf_outcome(one)
