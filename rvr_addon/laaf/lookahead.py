@@ -410,32 +410,10 @@ class AutofocusJob:
             q, region, subject = spoken
             source = "afnet+speech"
         t_box = min(max(q, self.buffer[0].t), self.buffer[-1].t)  # the region's frame, kept in the buffer
-        if self._same_target(region, t, t_box):
-            log.debug("AF-Net NFT at frame %d focuses the subject already in focus: skipped", t)
-            return
         known_at = max(0, ingest - self.window)
         nft = self._nft_from_region(region, t, source, known_at, subject)
         nft = replace(nft, confidence=round(float(p), 4), detail={"p": round(float(p), 4), "region_frame": int(q)})
         self._add_target(nft, region.box, t_box, ingest, mask=region.mask)
-
-    def _same_target(self, region: Region, t: int, t_box: int) -> bool:
-        """True when a region at frame t_box is the subject the target before t already holds
-        there: its box overlapping that target's tracked box and its focus within ``min_step``
-        of that target's level (an NFT that would not move the focus is none)."""
-        before = [tg for tg in self.targets if tg.nft.t < t]
-        if not before:
-            return False
-        tg = before[-1]
-        tracked = tg.boxes.get(t_box)
-        level = float(tg.level[t_box])
-        if tracked is None or not tracked[1] or not math.isfinite(level):
-            return False
-        x, y, w, h = tracked[0]
-        rx, ry, rw, rh = region.box
-        if rx >= x + w or x >= rx + rw or ry >= y + h or y >= ry + rh:
-            return False
-        value = self._read(self._frame(t_box), region.box, region.mask, prior=level)
-        return abs(value - level) < self.settings.min_step
 
     def _speaker_region(self, t: int) -> tuple[int, Region, str | None] | None:
         """(frame, region, face track id) of the speaker at an AF-Net NFT at t, or None.

@@ -1,5 +1,5 @@
 """Preset ``learned`` takes an AF-Net NFT's region from the speaker where someone speaks
-(``afnet_speaker``), and an NFT that would not move the focus is dropped (issue 8).
+(``afnet_speaker``; issue 8).
 
 AF-Net itself is scripted here (its interface, one NFT at the second turn whose map sits on
 the wrong head): what is tested is what the engine does with it. The speech detector is the
@@ -99,13 +99,12 @@ def test_the_nft_focuses_the_speaker_the_speech_detector_localises(talking):
     assert result.focus[-1] == pytest.approx(ramp_at(head_box(1, N - 1)), abs=0.5)  # then the speaker
 
 
-def test_map_only_drops_an_nft_on_the_subject_already_in_focus(talking):
+def test_map_only_keeps_the_map_region(talking):
     result = _run(*talking, speaker=False)
     assert "speech" not in result.detectors and "face" not in result.detectors
-    assert [n.t for n in result.nfts] == [0]  # the map's NFT is head 0, which has the focus already
+    assert [(n.t, n.source) for n in result.nfts] == [(0, "afnet"), (NFT_AT, "afnet")]
     head0 = np.array([ramp_at(head_box(0, k)) for k in range(N)])
     assert np.abs(result.focus - head0).max() <= 0.5  # head 0 all along, tracked as the camera pans
-
 
 
 def test_measured_in_chunks_equals_one_pass(talking, tmp_path):
