@@ -47,6 +47,9 @@ from .tracking import SubjectTracker
 
 log = logging.getLogger(__name__)
 
+ONSET_BEFORE = 6
+"""Preset 'learned': a turn starting this many frames before an AF-Net NFT still explains it."""
+
 
 @dataclass
 class AutofocusSettings:
@@ -418,18 +421,24 @@ class AutofocusJob:
     def _speaker_region(self, t: int) -> tuple[int, Region, str | None] | None:
         """(frame, region, face track id) of the speaker at an AF-Net NFT at t, or None.
 
-        Preset 'learned' with a speech detector (``afnet_speaker``, a clip with sound): of the
-        voiced frames t .. t + REGION_LAG_FRAMES still in the buffer, the speaker the speech
-        detector localises with the highest correlation (its window is centred there, so it
-        hears the new turn, not the one before). AF-Net knows *when* the speaker changes, but
-        seeing every 5th frame at 128 x 72 px it often cannot tell *whose* mouth moves."""
+        Preset 'learned' with a speech detector (``afnet_speaker``, a clip with sound), when a
+        voiced segment (a turn) starts within ``ONSET_BEFORE`` frames before t .. REGION_LAG_FRAMES
+        after it: of that turn's frames from t to t + REGION_LAG_FRAMES still in the buffer, the
+        speaker the speech detector localises with the highest correlation. An NFT far from any
+        voice onset (someone enters while another talks on) keeps AF-Net's map. AF-Net knows
+        *when* the speaker changes, but seeing every 5th frame at 128 x 72 px it often cannot
+        tell *whose* mouth moves."""
         from ..afnet.infer import REGION_LAG_FRAMES
 
         speech = self.detectors.get("speech")
         if speech is None or not speech.available or not self.buffer:
             return None
+        turns = [(a, b) for a, b in speech.audio.segments() if t - ONSET_BEFORE <= a <= t + REGION_LAG_FRAMES]
+        if not turns:
+            return None
+        a, b = turns[0]
         best = None
-        for k in range(max(t, self.buffer[0].t), min(t + REGION_LAG_FRAMES, self.buffer[-1].t) + 1):
+        for k in range(max(t, a, self.buffer[0].t), min(t + REGION_LAG_FRAMES, b, self.buffer[-1].t) + 1):
             box, corr, tid = speech.decide(k)
             if box is not None and (best is None or corr > best[1]):
                 best = (k, corr, box, tid)

@@ -38,10 +38,11 @@ def _region(box, shape) -> Region:
 
 class ScriptedAFNet(FocusDetector):
     """AF-Net's detector interface with a fixed answer: its map is on head 0 in every frame and
-    it proposes one NFT at frame NFT_AT (the right head starts to speak) with that map's region."""
+    it proposes one NFT at frame ``at`` (NFT_AT: the right head starts to speak) with that map's region."""
 
     name = "afnet"
     lookahead_frames = 16
+    at = NFT_AT
 
     def __init__(self, weights, n_frames, fps, threshold=None, min_gap=None, media=None, start_frame=0):
         self.shape = None
@@ -59,10 +60,10 @@ class ScriptedAFNet(FocusDetector):
         return DetectorOutput(heat)
 
     def take_nfts(self):
-        if self.proposed or self.pushed < NFT_AT + self.lookahead_frames:
+        if self.proposed or self.pushed < min(self.at + self.lookahead_frames, N):
             return []
         self.proposed = True
-        return [(NFT_AT, NFT_AT + 2, 0.9, _region(head_box(0, NFT_AT + 2), self.shape))]
+        return [(self.at, self.at + 2, 0.9, _region(head_box(0, self.at + 2), self.shape))]
 
 
 @pytest.fixture()
@@ -97,6 +98,12 @@ def test_the_nft_focuses_the_speaker_the_speech_detector_localises(talking):
     assert abs(cx - (right[0] + 15)) <= 20 and abs(cy - (right[1] + 18)) <= 20
     assert result.focus[0] == pytest.approx(ramp_at(head_box(0, 0)), abs=0.5)  # the map's head first
     assert result.focus[-1] == pytest.approx(ramp_at(head_box(1, N - 1)), abs=0.5)  # then the speaker
+
+
+def test_an_nft_far_from_a_voice_onset_keeps_the_map_region(talking, monkeypatch):
+    monkeypatch.setattr(ScriptedAFNet, "at", 46)  # ten frames into the right head's turn
+    result = _run(*talking, speaker=True)
+    assert [(n.t, n.source) for n in result.nfts] == [(0, "afnet"), (46, "afnet")]
 
 
 def test_map_only_keeps_the_map_region(talking):
