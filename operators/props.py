@@ -31,6 +31,8 @@ NFT_SOURCES = (
     ("action", "Action", "Found by the action (motion) detector"),
     ("speech", "Speech", "Found by the speech detector (who is talking)"),
     ("afnet", "AF-Net", "Proposed by the learned autofocus model"),
+    ("afnet_speech", "AF-Net + Speech", "Proposed by the learned autofocus model, on the speaker the speech detector "
+     "localised"),
     ("initial", "Initial", "The focus at the start of the clip, before any target"),
 )
 

@@ -411,7 +411,7 @@ class AutofocusJob:
         spoken = self._speaker_region(t)
         if spoken is not None:
             q, region, subject = spoken
-            source = "afnet+speech"
+            source = "afnet_speech"
         t_box = min(max(q, self.buffer[0].t), self.buffer[-1].t)  # the region's frame, kept in the buffer
         known_at = max(0, ingest - self.window)
         nft = self._nft_from_region(region, t, source, known_at, subject)

@@ -20,7 +20,7 @@ log = logging.getLogger(__name__)
 
 Frames: TypeAlias = int
 Box: TypeAlias = tuple[float, float, float, float]
-SOURCES = ("manual", "face", "saliency", "action", "speech", "afnet", "initial")
+SOURCES = ("manual", "face", "saliency", "action", "speech", "afnet", "afnet_speech", "initial")
 DEFAULT_BOX_FRACTION = 0.15  # side of the box put around a bare (x, y), as a fraction of the frame height
 NFT_FORMAT = "rvr-laaf-nfts/1"
 _JSON_HELP = ('an NFT file is a JSON list (or {"nfts": [...]}) of {"t": frame, "x": px, "y": px, '

@@ -61,6 +61,11 @@ def test_strip_properties_defaults(registered, factory_scene, tmp_path):
     assert props["aperture"].hard_min == 0.0
     assert props["depth_path"].subtype == "FILE_PATH" and props["output_dir"].subtype == "DIR_PATH"
     assert [i.identifier for i in props["aperture_shape"].enum_items] == ["DISK", "POLYGON", "ANAMORPHIC"]
+    from rvr_addon.laaf.nft import SOURCES
+
+    item = rvr.nfts.add()
+    sources = [i.identifier for i in type(item).bl_rna.properties["source"].enum_items]
+    assert sources == list(SOURCES)  # every source the engine writes can be kept on a strip
 
 
 def test_poll_explains_itself(registered, factory_scene):

@@ -90,7 +90,7 @@ def test_the_nft_focuses_the_speaker_the_speech_detector_localises(talking):
     assert result.detectors["speech"]["available"]
     assert [n.t for n in result.nfts] == [0, NFT_AT]
     nft = result.nfts[1]
-    assert nft.source == "afnet+speech" and nft.subject is None  # no face track: synchrony found it
+    assert nft.source == "afnet_speech" and nft.subject is None  # no face track: synchrony found it
     frame = nft.detail["region_frame"]
     assert NFT_AT <= frame <= NFT_AT + 10
     right = head_box(1, frame)
@@ -122,7 +122,7 @@ def test_measured_in_chunks_equals_one_pass(talking, tmp_path):
 
     settings = AutofocusSettings(input=talking[0], depth=talking[1], preset="learned", face_backend="haar")
     one = AutofocusJob(settings).run(progress=False)
-    assert [n.source for n in one.nfts[1:]] == ["afnet+speech"]
+    assert [n.source for n in one.nfts[1:]] == ["afnet_speech"]
     (tmp_path / "work").mkdir()
     chunked = chunked_laaf(settings, tmp_path / "work", N, 9)
     assert laaf_outcome(chunked) == laaf_outcome(one)
