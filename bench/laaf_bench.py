@@ -11,7 +11,9 @@ through ``--depth`` like any user map. Timed: ``AutofocusJob.run`` end to end --
 analysis resize, disparity read, every detector, combination, K-means, step detection, KCF
 tracking, the puller and the keyframe fit. Presets: conversation (face + speech, the heaviest:
 dlib HOG every 6th frame), action (DIS flow + parallax fit + saliency) and, when AF-Net weights
-are shipped, learned (AF-Net with the clip's sound: ``laaf.learned.*``), look-ahead and causal.
+are shipped, learned (AF-Net with the clip's sound, and the speech detector for the speaker of an
+NFT near a voice onset: ``laaf.learned.*``) and learned_map (AF-Net alone, ``--afnet-region map``:
+``laaf.learned_map.*``), look-ahead and causal.
 ``laaf.360p.fps`` is the slowest of them. The last stdout line is DESIGN.md's JSON.
 """
 from __future__ import annotations
@@ -70,10 +72,11 @@ def main() -> int:
         fps_all = []
         from rvr_addon.afnet.infer import DEFAULT_WEIGHTS
 
-        presets = ("conversation", "action") + (("learned",) if DEFAULT_WEIGHTS.is_file() else ())
+        presets = ("conversation", "action") + (("learned", "learned_map") if DEFAULT_WEIGHTS.is_file() else ())
         for preset in presets:
             for causal in (False, True):
-                job = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset=preset, causal=causal))
+                job = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset=preset.replace("_map", ""),
+                                                     causal=causal, afnet_speaker=preset == "learned"))
                 t0 = time.perf_counter()
                 result = job.run(progress=False)
                 dt = time.perf_counter() - t0
