@@ -218,3 +218,16 @@ def test_learned_preset_with_missing_weights_names_them_and_changes_nothing(regi
         bpy.ops.rvr.auto_focus("EXEC_DEFAULT", preset="learned", lookahead_s=0.5)
     assert [(n.frame, n.source, n.keep) for n in strip.rvr.nfts] == before
     assert _fc(strip) is None
+
+
+@pytest.mark.parametrize("region, speaker", [("SPEAKER", True), ("MAP", False)])
+def test_learned_focus_region_preference_reaches_the_engine(registered, analysed, use_prefs, region, speaker):
+    """Preferences > Learned Focus Region: the speaker where a voice starts (default) or AF-Net's map."""
+    import importlib
+
+    from conftest import PACKAGE
+
+    ops_focus = importlib.import_module(f"{PACKAGE}.operators.ops_focus")
+    use_prefs(afnet_region=region)
+    plan = ops_focus.plan_focus(bpy.context.scene, analysed, "learned", 0.5)
+    assert plan.settings.preset == "learned" and plan.settings.afnet_speaker is speaker
