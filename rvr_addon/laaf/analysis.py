@@ -154,8 +154,8 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
                                 window_s=s.speech_window_s, causal=causal)
         if speech.available or not whole_clip:
             detectors["speech"] = speech
-        else:
-            del detectors["face"]
+        elif "face" not in names:
+            del detectors["face"]  # the sound does not decode: AF-Net's maps only
     if "speech" in names:
         media = clip.path if clip.kind == "video" and clip.has_audio and whole_clip else None
         speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,

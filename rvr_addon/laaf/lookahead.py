@@ -66,7 +66,7 @@ class AutofocusSettings:
     keyframe_tol: the keyframes reproduce the track within this (disparity units).
     afnet_weights: AF-Net weights for preset 'learned' (None: rvr_addon/afnet/weights/afnet.pt).
     afnet_threshold: NFT probability an AF-Net peak must reach (0..1; None: the weights' own, else 0.5).
-    afnet_speaker: preset 'learned' on a clip with sound: an NFT where someone speaks takes its
+    afnet_speaker: preset 'learned' on a clip with sound: an NFT near a voice onset takes its
     region from the speaker the speech detector localises (mouth motion or audio-visual
     synchrony) instead of AF-Net's map; False: always the map (the paper's AF-Net alone).
     """

@@ -103,7 +103,7 @@ def test_autofocus_preset_learned(tmp_path, trained):
     assert result.detectors["afnet"]["receptive_field_frames"] == 17
     out = tmp_path / "focus.json"
     assert main(["autofocus", str(fdir), "--depth", str(ddir), "--preset", "learned", "--afnet-weights",
-                 str(run / "afnet.pt"), "-o", str(out), "-q"]) == 0
+                 str(run / "afnet.pt"), "--afnet-region", "map", "-o", str(out), "-q"]) == 0
     assert any(n["source"] == "afnet" for n in json.loads(out.read_text())["nfts"])
 
 
@@ -134,10 +134,13 @@ def test_eval_focus_compares_learned_with_the_presets(tmp_path, trained):
     write_harness_clip(tmp_path / "ds" / "clip_a", 30, 14, seed=50)
     write_harness_clip(tmp_path / "ds" / "clip_b", 30, None, seed=51, script="random")
     with pytest.raises(InputError, match="rvr train-afnet"):
-        evaluate(tmp_path / "ds", tmp_path / "never", ["learned"], afnet_weights=tmp_path / "none.pt", progress=False)
+        evaluate(tmp_path / "ds", tmp_path / "never", ["learned-map"], afnet_weights=tmp_path / "none.pt",
+                 progress=False)
     assert not (tmp_path / "never" / "summary.json").exists()
-    summary = evaluate(tmp_path / "ds", tmp_path / "report", ["learned", "salient"], afnet_weights=run / "afnet.pt",
-                       progress=False)
+    summary = evaluate(tmp_path / "ds", tmp_path / "report", ["learned", "learned-map", "salient"],
+                       afnet_weights=run / "afnet.pt", progress=False)
+    # no sound in these clips: AF-Net's map either way
+    assert summary["focus.learned-map.mean_dd"] == summary["focus.learned.mean_dd"]
     assert summary["focus.learned.clips"] == 2 and summary["focus.learned.gt_nfts"] == 1
     assert summary["focus.learned.mean_dt_frames"] <= 6
     assert "focus.learned.clip_b.mean_dd" in summary and "focus.learned.clip_b.mean_dt_frames" not in summary
