@@ -11,7 +11,7 @@ from ..cli import on_interrupt
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``batch`` sub-command to the ``rvr`` sub-parsers."""
     from ..laaf.combine import PRESETS
-    from ..laaf.commands import _pull_args
+    from ..laaf.commands import _afnet_args, _pull_args
     from ..temporal.filter import TemporalSettings
     from .settings import FORMATS
 
@@ -44,7 +44,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="temporal filter: neighbouring frames in the window (default %(default)s)")
     g = p.add_argument_group("autofocus")
     g.add_argument("--preset", choices=tuple(PRESETS), default="conversation",
-                   help="LAAF AI-assist preset (default %(default)s; without audio it falls back to faces)")
+                   help="LAAF AI-assist preset (default %(default)s; without audio it falls back to faces), or "
+                        "learned (AF-Net)")
+    _afnet_args(g)
     g.add_argument("--look-ahead", type=float, default=2.0, metavar="S", help="look-ahead window in seconds (default 2)")
     g.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do)")
     _pull_args(g)
@@ -73,19 +75,21 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def cmd_batch(args: argparse.Namespace) -> int:
     """Run ``rvr batch``; prints the summary table; exit status 1 if any clip failed."""
-    from ..laaf.commands import _pull
+    from ..laaf.commands import _check_afnet, _pull
     from ..temporal.filter import TemporalSettings
     from .graph import ClusterSettings, run_batch
     from .inputs import collect_clips
     from .settings import BatchSettings
 
+    _check_afnet(args)
     settings = BatchSettings(
         output=args.output, cache_root=args.cache_root, weights=args.weights, depth_root=args.depth_root,
         depth_scale=args.depth_scale, depth_offset=args.depth_offset, depth_is_distance=args.depth_is_distance,
         no_hdr=args.no_hdr, temporal=TemporalSettings(window=args.temporal_window, m=args.m), preset=args.preset,
         window_s=args.look_ahead, causal=args.causal, pull=_pull(args), aperture=args.aperture, scale=args.scale,
         format=args.format, chunk_frames=args.chunk_frames, fps=args.fps, force=args.force, retries=args.retries,
-        keep_cache=not args.drop_cache)
+        keep_cache=not args.drop_cache, afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold,
+        afnet_speaker=args.afnet_region == "speaker")
     cluster = ClusterSettings(scheduler=args.scheduler, workers=args.workers,
                               threads_per_worker=args.threads_per_worker, task_threads=args.task_threads,
                               dashboard=not args.no_dashboard)

@@ -76,16 +76,33 @@ def check_settings(settings: BatchSettings) -> None:
 
 
 def resolve_weights(settings: BatchSettings) -> tuple[Path | None, str]:
-    """(weights file, its id for the fingerprint). The weights are loaded once here, so a
-    missing or corrupt file fails before any cluster starts, naming the file and the fix;
-    (None, "none") when the batch needs no network (--depth-root with --no-hdr)."""
+    """(estimator weights file, the id of the networks for the fingerprint: the estimator's,
+    and AF-Net's for preset learned). The weights are loaded once here, so a missing or corrupt
+    file fails before any cluster starts, naming the file and the fix; the file is None when
+    the batch needs no estimator (--depth-root with --no-hdr)."""
     from ..estimate.infer import default_weights, load_estimator
 
+    afnet = afnet_id(settings)
     if settings.depth_root is not None and settings.no_hdr:
-        return None, "none"
+        return None, "none" + afnet
     path = Path(settings.weights) if settings.weights is not None else default_weights()
     model = load_estimator(path)
-    return path.resolve(), model.model_hash
+    return path.resolve(), model.model_hash + afnet
+
+
+def afnet_id(settings: BatchSettings) -> str:
+    """Id of the AF-Net weights preset learned uses (a hash of the file), for the fingerprint;
+    "" for other presets. Loads them, so a missing or foreign file fails before any cluster
+    starts, naming the file and the fix."""
+    import hashlib
+
+    from ..afnet.infer import DEFAULT_WEIGHTS, load_afnet
+
+    if settings.preset != "learned":
+        return ""
+    load_afnet(settings.afnet_weights)
+    path = Path(settings.afnet_weights) if settings.afnet_weights is not None else DEFAULT_WEIGHTS
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
 def plan_clips(clips: list[Path], settings: BatchSettings, fingerprint: str) -> list[ClipPlan]:

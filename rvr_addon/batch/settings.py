@@ -31,7 +31,8 @@ class BatchSettings:
     clips). format: mp4 (H.264 with the source audio), png (8-bit sRGB frames) or exr
     (linear float frames). fps: frame rate of image-sequence inputs. keep_cache: False
     deletes a clip's cache once its outputs are written (at 1080p a cache frame is tens of
-    MB; keep it for clips to be edited further in Blender).
+    MB; keep it for clips to be edited further in Blender). afnet_weights, afnet_threshold,
+    afnet_speaker: preset learned (``rvr autofocus --afnet-weights/--afnet-threshold/--afnet-region``).
     """
 
     output: Path
@@ -55,6 +56,9 @@ class BatchSettings:
     force: bool = False
     retries: int = 0
     keep_cache: bool = True
+    afnet_weights: Path | None = None
+    afnet_threshold: float | None = None
+    afnet_speaker: bool = True
 
     @property
     def caches(self) -> Path:

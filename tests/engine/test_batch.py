@@ -14,7 +14,7 @@ import pytest
 
 from batch_synth import N, KillOnce, chunked_laaf, laaf_outcome, make_clip, make_depth, untrained_weights
 from rvr_addon.batch.chunks import chunk_ranges, stabilize_reads
-from rvr_addon.batch.graph import run_batch
+from rvr_addon.batch.graph import plan_clips, run_batch
 from rvr_addon.batch.inputs import clip_names, collect_clips
 from rvr_addon.batch.settings import BatchSettings
 from rvr_addon.batch.staging import adopt_estimates, seed_staging
@@ -198,7 +198,25 @@ def test_missing_weights_name_the_file_before_any_cluster_starts(tmp_path, data,
         run_batch([data["a"]], BatchSettings(output=tmp_path / "out"), progress=False)
     assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--weights", str(tmp_path / "nope.pt")]) == 2
     assert "nope.pt' not found" in capsys.readouterr().err
+    assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--preset", "learned", "--afnet-weights",
+                 str(tmp_path / "no_afnet.pt")]) == 2
+    assert "AF-Net weights" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_learned_preset_settings_reach_autofocus_and_the_fingerprint(tmp_path):
+    from rvr_addon.afnet.infer import DEFAULT_WEIGHTS
+    from rvr_addon.batch.graph import afnet_id
+    from rvr_addon.batch.stages import autofocus_settings
+
+    s = BatchSettings(output=tmp_path, preset="learned", afnet_weights=DEFAULT_WEIGHTS, afnet_threshold=0.4,
+                      afnet_speaker=False)
+    plan = plan_clips([tmp_path / "a.mp4"], s, "f" * 16)[0]
+    a = autofocus_settings(plan, s)
+    assert (a.preset, a.afnet_weights, a.afnet_threshold, a.afnet_speaker) == ("learned", DEFAULT_WEIGHTS, 0.4, False)
+    assert len(afnet_id(s)) == 16 and afnet_id(BatchSettings(output=tmp_path)) == ""
+    assert s.fingerprint("x") != BatchSettings(output=tmp_path, preset="learned", afnet_weights=DEFAULT_WEIGHTS,
+                                               afnet_threshold=0.4).fingerprint("x")
 
 
 # ------------------------------------------------------------------------------ LAAF in chunks
