@@ -231,3 +231,14 @@ def test_learned_focus_region_preference_reaches_the_engine(registered, analysed
     use_prefs(afnet_region=region)
     plan = ops_focus.plan_focus(bpy.context.scene, analysed, "learned", 0.5)
     assert plan.settings.preset == "learned" and plan.settings.afnet_speaker is speaker
+
+
+def test_auto_focus_learned_with_the_shipped_weights(registered, analysed, use_prefs):
+    """Auto Focus > Learned (AF-Net, the shipped weights; the 12-frame clip is shorter than its
+    receptive field and is padded): keys are written and every target names its source."""
+    strip = analysed
+    use_prefs()
+    assert bpy.ops.rvr.auto_focus("EXEC_DEFAULT", preset="learned", lookahead_s=0.5) == {"FINISHED"}
+    assert _fc(strip) is not None and len(_fc(strip).keyframe_points) >= 2
+    assert strip.rvr.nfts and {n.source for n in strip.rvr.nfts} <= {"afnet", "afnet_speech", "face", "saliency",
+                                                                       "initial"}
