@@ -407,19 +407,21 @@ class AutofocusJob:
             return
         if any(abs(n.t - t) < self.settings.pull.pull_frames for n in self.manual):
             return  # the user wins
-        source, subject = "afnet", None
+        source, subject, detail = "afnet", None, {"p": round(float(p), 4)}
         spoken = self._speaker_region(t)
         if spoken is not None:
-            q, region, subject = spoken
+            q, region, subject, corr, turn = spoken
             source = "afnet_speech"
+            detail.update(speech_corr=round(corr, 4), voice_turn=list(turn))
         t_box = min(max(q, self.buffer[0].t), self.buffer[-1].t)  # the region's frame, kept in the buffer
         known_at = max(0, ingest - self.window)
         nft = self._nft_from_region(region, t, source, known_at, subject)
-        nft = replace(nft, confidence=round(float(p), 4), detail={"p": round(float(p), 4), "region_frame": int(q)})
+        nft = replace(nft, confidence=round(float(p), 4), detail={**detail, "region_frame": int(q)})
         self._add_target(nft, region.box, t_box, ingest, mask=region.mask)
 
-    def _speaker_region(self, t: int) -> tuple[int, Region, str | None] | None:
-        """(frame, region, face track id) of the speaker at an AF-Net NFT at t, or None.
+    def _speaker_region(self, t: int) -> tuple[int, Region, str | None, float, tuple[int, int]] | None:
+        """(frame, region, face track id, correlation, the turn's (first, last) frame) of the
+        speaker at an AF-Net NFT at t, or None.
 
         Preset 'learned' with a speech detector (``afnet_speaker``, a clip with sound), when a
         voiced segment (a turn) starts within ``ONSET_BEFORE`` frames before t .. REGION_LAG_FRAMES
@@ -444,12 +446,13 @@ class AutofocusJob:
                 best = (k, corr, box, tid)
         if best is None:
             return None
-        k, _, box, tid = best
+        k, corr, box, tid = best
         h, w = self._frame(k).gray.shape
         x, y, bw, bh = box
         mask = np.zeros((h, w), bool)
         mask[max(int(round(y)), 0):int(round(y + bh)), max(int(round(x)), 0):int(round(x + bw))] = True
-        return k, Region(x + bw / 2, y + bh / 2, box, mask, float(mask.mean()), ("afnet", "speech")), tid
+        region = Region(x + bw / 2, y + bh / 2, box, mask, float(mask.mean()), ("afnet", "speech"))
+        return k, region, tid, float(corr), (int(a), int(b))
 
     # -- targets and tracking -----------------------------------------------------------------
     def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:

@@ -92,7 +92,8 @@ def test_the_nft_focuses_the_speaker_the_speech_detector_localises(talking):
     nft = result.nfts[1]
     assert nft.source == "afnet_speech" and nft.subject is None  # no face track: synchrony found it
     frame = nft.detail["region_frame"]
-    assert NFT_AT <= frame <= NFT_AT + 10
+    assert NFT_AT <= frame <= NFT_AT + 10 and nft.detail["speech_corr"] >= 0.3  # synchrony's own bar
+    assert nft.detail["voice_turn"][0] == pytest.approx(TURNS[1][0], abs=2)  # the right head's turn
     right = head_box(1, frame)
     cx, cy = nft.box[0] + nft.box[2] / 2, nft.box[1] + nft.box[3] / 2
     assert abs(cx - (right[0] + 15)) <= 20 and abs(cy - (right[1] + 18)) <= 20
