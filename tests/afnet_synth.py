@@ -19,6 +19,7 @@ import torch
 from rvr_addon.afnet.annotations import AnnotatedClip, Annotation, write_annotations
 from rvr_addon.afnet.model import AFNetConfig
 
+
 @pytest.fixture(scope="module", autouse=True)
 def one_thread():
     """Tiny convolutions: one torch thread is faster on the shared 2-core machine."""

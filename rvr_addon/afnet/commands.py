@@ -73,7 +73,7 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
                              s=args.units, sample_step=args.sample_step,
                              audio=AUDIO_FEATURES if args.audio else 0).check()  # --stride: via the settings
     except ValueError as ex:
-        raise RvrError(f"--size/--f-t/--units/--sample-step/--stride: {ex}") from None
+        raise RvrError(f"--size/--f-t/--units/--sample-step: {ex}") from None
     set_torch_threads(args.threads)
     if not 0.0 <= args.pos_fraction <= 1.0 or args.tolerance <= 0:
         raise RvrError(f"--pos-fraction must be in [0, 1] and --tolerance > 0 (got {args.pos_fraction}, "

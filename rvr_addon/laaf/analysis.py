@@ -148,27 +148,25 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     if "action" in names:
         detectors["action"] = ActionDetector()
     preset_used, note = s.preset, ""
-    if speaker:  # AF-Net's NFTs take their region from the speaker where someone speaks (lookahead)
-        media = clip.path if whole_clip else None
-        speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
-                                window_s=s.speech_window_s, causal=causal)
-        if speech.available or not whole_clip:
-            detectors["speech"] = speech
-        elif "face" not in names:
-            del detectors["face"]  # the sound does not decode: AF-Net's maps only
-    if "speech" in names:
+    if "speech" in names or speaker:  # speaker: AF-Net's NFTs take the speaker's region (lookahead)
         media = clip.path if clip.kind == "video" and clip.has_audio and whole_clip else None
         speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
                                 window_s=s.speech_window_s, causal=causal)
-        detectors["speech"] = speech
-        if whole_clip and media is None:
-            speech.available = False
-            speech.unavailable_reason = f"speech detector off: '{clip.path}' has no audio track"
-            log.warning("%s; preset %s falls back to %s", speech.unavailable_reason, s.preset, FALLBACKS.get(s.preset))
-        if not speech.available:
-            names.remove("speech")
-            preset_used = FALLBACKS.get(s.preset, s.preset)
-            note = f"{speech.unavailable_reason}; preset {s.preset} fell back to {preset_used}"
+        if "speech" in names:
+            detectors["speech"] = speech
+            if whole_clip and media is None:
+                speech.available = False
+                speech.unavailable_reason = f"speech detector off: '{clip.path}' has no audio track"
+                log.warning("%s; preset %s falls back to %s", speech.unavailable_reason, s.preset,
+                            FALLBACKS.get(s.preset))
+            if not speech.available:
+                names.remove("speech")
+                preset_used = FALLBACKS.get(s.preset, s.preset)
+                note = f"{speech.unavailable_reason}; preset {s.preset} fell back to {preset_used}"
+        elif speech.available or not whole_clip:
+            detectors["speech"] = speech
+        elif "face" not in names:
+            del detectors["face"]  # the sound does not decode: AF-Net's maps only
     return DetectorSet(detectors, tuple(names), preset_used, note)
 
 
