@@ -199,6 +199,10 @@ def add_train_parser(sub) -> None:
                    help="share of draws from ground-truth-only harness frames (clips generated with --no-dof: "
                         "the supervised terms alone) when there are also frames with shallow-DOF images "
                         "(default 0.5)")
+    p.add_argument("--procedural-share", type=float, default=0.5, metavar="P",
+                   help="share of draws from procedural frames (folders written by `rvr procedural`, D supervised "
+                        "up to scale and shift) when --data also holds harness clips or --user-photos are given "
+                        "(default 0.5)")
     p.add_argument("--inference-max-pixels", type=int, metavar="P",
                    help="record in the weights that inference runs the network's trunk on frames shrunk to at "
                         "most P pixels (the scale it was trained at; D is sliced and E gated at full size); "
@@ -257,6 +261,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
         whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
+        procedural_share=args.procedural_share,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
         model=EstimatorConfig(row_prior=args.row_prior))
     trainer = Trainer(settings, progress=not args.quiet)
@@ -265,6 +270,36 @@ def cmd_train(args: argparse.Namespace) -> int:
     if trainer.report.total:
         print(f"rvr train: {trainer.report.summary()} (see the warnings above)", file=sys.stderr)
     print(f"wrote {args.output / 'estimator.pt'} ({trainer.iteration} iterations, {trainer.wall_time:.0f} s)")
+    return 0
+
+
+def add_procedural_parser(sub) -> None:
+    p = sub.add_parser("procedural", help="write procedural training scenes for the estimator (rooms, streets)",
+                       description="Ray-cast random rooms and streets textured with pieces of real photographs "
+                                   "and write them as a training dataset for `rvr train --data DIR`: input PNG, "
+                                   "ground-truth disparity and HDR per frame (about 1 s a frame on one core). "
+                                   "Resumable: frames already written are kept; a larger --frames extends it.")
+    p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="dataset folder")
+    p.add_argument("--frames", type=int, default=2000, help="number of frames (default 2000)")
+    p.add_argument("--seed", type=int, default=1, help="dataset seed: frame i is drawn from (seed, i) (default 1)")
+    p.add_argument("--textures", action="append", type=Path, default=[], metavar="DIR",
+                   help="folder of photographs (png/jpg, recursively) to cut material textures from (repeatable); "
+                        "scikit-image's sample photographs are always added (never the Motorcycle pair)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_procedural)
+
+
+def cmd_procedural(args: argparse.Namespace) -> int:
+    from .estimate.procedural import TexturePool, texture_paths, write_dataset
+
+    if args.frames < 1:
+        raise RvrError(f"--frames must be at least 1, got {args.frames}")
+    pool = TexturePool.from_paths(texture_paths(args.textures))
+    if not pool.images:
+        print("rvr procedural: no photographs found (install scikit-image or pass --textures DIR); "
+              "using procedural textures only", file=sys.stderr)
+    made = write_dataset(args.output, args.frames, args.seed, pool, progress=not args.quiet)
+    print(f"wrote {made} frames to {args.output} ({args.frames} in all, {len(pool.images)} photographs)")
     return 0
 
 
@@ -365,6 +400,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     add_render_parser(sub)
     add_train_parser(sub)
+    add_procedural_parser(sub)
     add_estimate_parser(sub)
     add_eval_estimator_parser(sub)
     from .laaf.commands import add_parsers as add_laaf_parsers

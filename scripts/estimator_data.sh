@@ -12,9 +12,14 @@
 # DATA_DIR/deep   ground-truth-only clips (--no-dof: the deep pass with exact disparity and HDR,
 #                 no DOF passes; `rvr train` uses them for its supervised terms, kind "gt"):
 #                 photo style, 6 frames each, seeds 4001.. (even seeds tilted down). ~40 s a clip.
+# DATA_DIR/procedural  procedural rooms and streets (`rvr procedural`, no Cycles: ~0.7 s a frame
+#                 on one core), textured with pieces of the photographs under ../shared/data's
+#                 Sintel frames and the harness's texture cache (frames of the real clips, written
+#                 by the `generate` runs above) plus scikit-image's samples; N_PROC frames, seed 2.
 #
-# Then, e.g.:
-#   rvr train --data DATA_DIR/deep --data DATA_DIR/train -o RUN --gt-share 0.75 --crop 160 \
+# Then, e.g. (MODEL.md has the exact commands of the shipped weights):
+#   rvr train --data DATA_DIR/procedural --data DATA_DIR/deep --data DATA_DIR/train -o RUN \
+#             --procedural-share 0.6 --gt-share 0.75 --ignore-prints --crop 160 \
 #             --inference-max-pixels 57600 --threads 1 --iterations 20000
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,6 +27,7 @@ PY=${PY:-.venv/bin/python}
 DATA=${1:-out/estimator_data}
 N_DEEP=${2:-600}
 N_TRAIN=${N_TRAIN:-40}
+N_PROC=${N_PROC:-8000}
 
 gen() {  # gen OUT ARGS...: one clip, skipped when complete
   local out=$1; shift
@@ -45,3 +51,7 @@ for ((i = 0; i < N_DEEP; i++)); do
   if ((seed % 2 == 0)); then tilt=(--tilt=-16,0); else tilt=(); fi
   gen "$DATA/deep/clip_$seed" --seed "$seed" --frames 6 --no-dof "${tilt[@]}"
 done
+TEXTURE_CACHE=${RVR_TEXTURE_CACHE:-$HOME/.cache/rvr-laaf/textures}
+textures=(--textures ../shared/data/sintel_frames)
+[[ -d "$TEXTURE_CACHE/frames" ]] && textures+=(--textures "$TEXTURE_CACHE/frames")
+nice -n 10 "$PY" -m rvr_addon procedural -o "$DATA/procedural" --frames "$N_PROC" --seed 2 "${textures[@]}"

@@ -116,6 +116,8 @@ class SampleSource:
     gt_disparity, gt_hdr: harness ground truth of the input (``gt/disparity`` EXR, channel D in
         px at the native width; ``gt/hdr`` EXR, linear radiance R, G, B), None for photos.
     unsupervised_ids: object IDs (channel ID of gt_disparity) whose disparity is not supervised.
+    disparity_invariant: the ground-truth D is known only up to a positive scale and a shift
+        (procedural frames: no lens); the loss fits them per sample.
     """
 
     name: str
@@ -127,6 +129,7 @@ class SampleSource:
     gt_disparity: Path | None = None
     gt_hdr: Path | None = None
     unsupervised_ids: tuple[int, ...] = ()
+    disparity_invariant: bool = False
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -152,6 +155,7 @@ class TrainSample:
         without ground truth.
     saturated: (h, w) bool, the input's brightest channel >= ``SATURATED`` (clipped pixels).
     native_width: width in px of the source file (to report D errors in DESIGN units).
+    disparity_invariant: supervise D up to a positive scale and a shift (procedural frames).
     """
 
     name: str
@@ -166,6 +170,7 @@ class TrainSample:
     gt_exponent: np.ndarray | None = None
     saturated: np.ndarray | None = None
     native_width: float | None = None
+    disparity_invariant: bool = False
 
 
 @dataclass
@@ -452,6 +457,61 @@ def _ground_truth_sources(clip: Path, manifest: dict, config_hash: str | None, w
     return found
 
 
+def find_procedural_sets(root: str | Path) -> list[Path]:
+    """Every folder at or under ``root`` holding a manifest.json of format ``rvr-laaf-procedural/*``
+    (written by ``rvr procedural``)."""
+    from .procedural import PROCEDURAL_FORMAT
+
+    prefix = PROCEDURAL_FORMAT.split("/")[0] + "/"
+    found = []
+    for manifest in Path(root).rglob("manifest.json"):
+        try:
+            fmt = json.loads(manifest.read_text()).get("format", "")
+        except (OSError, ValueError, AttributeError):
+            continue
+        if isinstance(fmt, str) and fmt.startswith(prefix):
+            found.append(manifest.parent)
+    return sorted(found, key=natural_key)
+
+
+def procedural_sources(folder: Path, report: SkipReport) -> list[SampleSource]:
+    """Kind ``gt`` sources of a procedural dataset: every frame with a done marker whose files
+    exist with their sizes; D is supervised up to scale and shift (``disparity_invariant``)."""
+    manifest = json.loads((folder / "manifest.json").read_text())
+    total = int(manifest.get("frames", 0))
+    written = [f for f in range(1, total + 1) if (folder / "done" / f"frame_{f:05d}.json").is_file()]
+    if len(written) < total:
+        report.add("procedural frames not written yet", f"{folder}: {total - len(written)} of {total} frames are "
+                   "not written yet (`rvr procedural` still running or stopped: run it again to finish); left out")
+    found = []
+    for frame in written:
+        reason = frame_complete(folder, frame, None)
+        if reason:
+            report.add("incomplete frame", f"procedural frame {frame} of {folder} is incomplete ({reason}); skipped")
+            continue
+        name = f"frame_{frame:05d}"
+        inp = folder / "input" / f"{name}.png"
+        found.append(SampleSource(f"{folder.name}/{name}", "procedural", inp, {}, _image_width(inp), {},
+                                  folder / "gt" / "disparity" / f"{name}.exr", folder / "gt" / "hdr" / f"{name}.exr",
+                                  disparity_invariant=True))
+    return found
+
+
+def training_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False) -> list[SampleSource]:
+    """Sources of every harness clip and procedural dataset under ``root`` (``rvr train --data``).
+
+    Raises InputError when ``root`` holds neither."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"Training data folder '{root}' does not exist; pass a folder written by "
+                         "`python -m sintel_eval generate -o DIR` or `rvr procedural -o DIR`.")
+    sets = find_procedural_sets(root)
+    sources = [src for folder in sets for src in procedural_sources(folder, report)]
+    if find_harness_clips(root) or not sets:
+        sources += harness_sources(root, report, ignore_prints)
+    return sources
+
+
 def _harness_source(clip: Path, frame: int, sidecar: Path, width: int | None,
                     unsupervised_ids: tuple[int, ...] = ()) -> SampleSource:
     rec = json.loads(sidecar.read_text())
@@ -735,6 +795,8 @@ class Augment:
     flip: bool = True
     whole_frame: float = 0.0
     gt_share: float = 0.5
+    procedural_share: float = 0.0
+    """Share of draws from procedural frames (:mod:`.procedural`) when there are other sources too."""
 
 
 class TrainingSet:
@@ -748,7 +810,8 @@ class TrainingSet:
         self.augment = augment
         self.report = report if report is not None else SkipReport()
         self._bad: set[str] = set()
-        self._gt_only = [s for s in self.sources if s.kinds == ("gt",)]
+        self._procedural = [s for s in self.sources if s.origin == "procedural"]
+        self._gt_only = [s for s in self.sources if s.kinds == ("gt",) and s.origin != "procedural"]
         self._rendered = [s for s in self.sources if s.kinds != ("gt",)]
 
     def __len__(self) -> int:
@@ -760,16 +823,21 @@ class TrainingSet:
         kinds = Counter(k for s in self.sources for k in s.kinds)
         clips = sorted({s.name.split("/")[0] for s in self.sources if s.origin == "harness"})
         return {"harness_frames": by_origin.get("harness", 0), "harness_clips": len(clips),
+                "procedural_frames": by_origin.get("procedural", 0),
                 "photo_shots": by_origin.get("photos", 0), "kinds": dict(kinds),
                 "skipped": dict(self.report.counts)}
 
     def draw(self, rng: np.random.Generator, retries: int = 20) -> TrainSample:
-        """A random sample: a ground-truth-only frame with probability ``augment.gt_share`` when
-        both kinds of source exist, else uniform over the others; then uniform over the
-        source's kinds."""
+        """A random sample: a procedural frame with probability ``augment.procedural_share`` when
+        there are other sources too; else a ground-truth-only harness frame with probability
+        ``augment.gt_share`` when both kinds exist, else uniform over the others; then uniform over
+        the source's kinds."""
+        others = self._gt_only + self._rendered
         for _ in range(retries):
             pool = self.sources
-            if self._gt_only and self._rendered:
+            if self._procedural and others:
+                pool = self._procedural if float(rng.random()) < self.augment.procedural_share else others
+            if pool is not self._procedural and self._gt_only and self._rendered:
                 pool = self._gt_only if float(rng.random()) < self.augment.gt_share else self._rendered
             src = pool[int(rng.integers(len(pool)))]
             if src.name in self._bad:
@@ -836,7 +904,7 @@ class TrainingSet:
             gt_e, sat = exponent_target(inp, hdr)
         if kind == "gt":  # no shallow-DOF image: the supervised terms alone (target unused)
             return TrainSample(src.name, kind, inp, inp, 1.0, 0.0, frame_width, None, gt_d, gt_e, sat,
-                               float(src.native_width))
+                               float(src.native_width), src.disparity_invariant)
         large = src.members["large"]
         return TrainSample(src.name, kind, inp, prep(members[0]), large.alpha, large.beta * px_scale,
                            frame_width, adjusted, gt_d, gt_e, sat, float(src.native_width))

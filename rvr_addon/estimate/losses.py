@@ -433,32 +433,56 @@ def fit_scale_shift(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     return torch.where(empty, torch.ones_like(s), s), torch.where(empty, torch.zeros_like(t), t)
 
 
+def align_median_scale(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """``pred`` mapped onto ``target`` by matching, per sample, the median and the mean absolute
+    deviation from it over ``mask`` (MiDaS's scale-and-shift-invariant alignment). The scale is
+    always positive: an inverted prediction stays inverted and is penalised, and the gradient flows
+    through both statistics. pred, target, mask: (B, 1, H, W)."""
+    out = []
+    for b in range(pred.shape[0]):
+        m = mask[b].bool()
+        if int(m.sum()) < 2:
+            out.append(pred[b])
+            continue
+        p, g = pred[b][m], target[b][m]
+        mp, mg = p.median(), g.median()
+        sp, sg = (p - mp).abs().mean().clamp(min=1e-6), (g - mg).abs().mean()
+        out.append((pred[b] - mp) / sp * sg + mg)
+    return torch.stack(out)
+
+
 def _masked_mean(x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     m = mask.to(x.dtype)
     return (x * m).sum() / m.sum().clamp(min=1.0)
 
 
-def disparity_l1(pred: torch.Tensor, target: torch.Tensor, invariant: bool = False) -> torch.Tensor:
-    """L_D: mean |pred - target| over finite target pixels (after a per-sample LS scale+shift of
-    ``pred`` if ``invariant``). pred, target: (B, 1, H, W) in the same unit (D_rel)."""
-    mask = torch.isfinite(target)
-    tgt = torch.where(mask, target, torch.zeros_like(target))
+def _aligned(pred: torch.Tensor, tgt: torch.Tensor, mask: torch.Tensor, invariant: bool, positive: bool) -> torch.Tensor:
+    if positive:
+        return align_median_scale(pred, tgt, mask)
     if invariant:
         s, t = fit_scale_shift(pred, tgt, mask)
-        pred = s * pred + t
+        return s * pred + t
+    return pred
+
+
+def disparity_l1(pred: torch.Tensor, target: torch.Tensor, invariant: bool = False,
+                 positive: bool = False) -> torch.Tensor:
+    """L_D: mean |pred - target| over finite target pixels (after a per-sample LS scale+shift of
+    ``pred`` if ``invariant``, or after :func:`align_median_scale` if ``positive``: a positive
+    scale). pred, target: (B, 1, H, W) in the same unit (D_rel)."""
+    mask = torch.isfinite(target)
+    tgt = torch.where(mask, target, torch.zeros_like(target))
+    pred = _aligned(pred, tgt, mask, invariant, positive)
     return _masked_mean((pred - tgt).abs(), mask)
 
 
 def disparity_gradient_loss(pred: torch.Tensor, target: torch.Tensor, invariant: bool = False,
-                            scales: int = GRADIENT_SCALES) -> torch.Tensor:
+                            scales: int = GRADIENT_SCALES, positive: bool = False) -> torch.Tensor:
     """L_Dgrad: multi-scale gradient matching of R = pred - target (MiDaS): the sum over
     ``scales`` (every 2^k-th pixel) of the masked mean |dR/dx| + |dR/dy| (both neighbours valid)."""
     mask = torch.isfinite(target)
     tgt = torch.where(mask, target, torch.zeros_like(target))
-    if invariant:
-        s, t = fit_scale_shift(pred, tgt, mask)
-        pred = s * pred + t
-    r = pred - tgt
+    r = _aligned(pred, tgt, mask, invariant, positive) - tgt
     total = pred.new_zeros(())
     for k in range(scales):
         step = 2**k
@@ -487,20 +511,23 @@ def exponent_losses(exponent: torch.Tensor, target: torch.Tensor, saturated: tor
 
 def supervised_loss(disparity_rel: torch.Tensor, gt_disparity_rel: torch.Tensor | None, exponent: torch.Tensor,
                     gt_exponent: torch.Tensor | None, saturated: torch.Tensor | None, e_max: float,
-                    weights: LossWeights = LossWeights()) -> LossResult:
+                    weights: LossWeights = LossWeights(), scale_free: bool = False) -> LossResult:
     """L_sup of one sample (unweighted by ``weights.supervised``; see the module docstring).
 
     disparity_rel, gt_disparity_rel: (B, 1, H, W) D in percent of the frame width (ground truth
     NaN where unknown; None: no disparity terms). exponent, gt_exponent: (B, 3, H, W) E (None:
-    no E terms); saturated: (B, 1, H, W) bool. Parts: ``sup_d``, ``sup_dgrad``, ``sup_e``,
+    no E terms); saturated: (B, 1, H, W) bool. scale_free: the ground truth is known only up to a
+    positive scale and a shift (procedural frames): D is aligned by :func:`align_median_scale`,
+    whatever ``disparity_invariant`` says. Parts: ``sup_d``, ``sup_dgrad``, ``sup_e``,
     ``sup_e0`` (those that apply) and ``sup`` (the weighted sum).
     """
     total = disparity_rel.new_zeros(())
     parts: dict[str, float] = {}
     w = weights
     if gt_disparity_rel is not None:
-        l_d = disparity_l1(disparity_rel, gt_disparity_rel, w.disparity_invariant)
-        l_g = disparity_gradient_loss(disparity_rel, gt_disparity_rel, w.disparity_invariant)
+        invariant = w.disparity_invariant or scale_free
+        l_d = disparity_l1(disparity_rel, gt_disparity_rel, invariant, positive=scale_free)
+        l_g = disparity_gradient_loss(disparity_rel, gt_disparity_rel, invariant, positive=scale_free)
         total = total + w.sup_disparity * l_d + w.sup_disparity_grad * l_g
         parts.update(sup_d=l_d.item(), sup_dgrad=l_g.item())
     if gt_exponent is not None and saturated is not None:

@@ -46,9 +46,10 @@ from ..render.aperture import ApertureSpec
 from ..render.model import K_HDR, hdr_radiance
 from ..training_run import TrainingRun, previous_init_record, save_png, save_weights
 from ..training_run import deferred_interrupt  # noqa: F401 - re-exported: callers import it from here
-from .data import Augment, SkipReport, TrainingSet, TrainSample, harness_sources, photo_sources
+from .data import Augment, SkipReport, TrainingSet, TrainSample, photo_sources, training_sources
 from .losses import (
-    LossResult, LossWeights, VGG19Features, load_vgg19, render_member, supervised_loss, to_display, total_loss,
+    LossResult, LossWeights, VGG19Features, fit_scale_shift, load_vgg19, render_member, supervised_loss, to_display,
+    total_loss,
 )
 from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, disparity_to_px, grow_state_dict
 
@@ -79,6 +80,8 @@ class TrainSettings:
     """Share of samples that are whole frames shrunk to ~crop**2 px (:class:`.data.Augment`)."""
     gt_share: float = 0.5
     """Share of draws from ground-truth-only frames (kind ``gt``) when there are also rendered ones."""
+    procedural_share: float = 0.5
+    """Share of draws from procedural frames (``rvr procedural``) when there are other sources too."""
     inference_max_pixels: int | None = None
     """Written into the weights' header: the trunk size inference uses by default (None: full size)."""
     vgg19: Path | None = None
@@ -146,25 +149,31 @@ def _supervised_only(model: EstimatorNet, out, sample: TrainSample, weights: Los
     gt_d = torch.from_numpy(sample.gt_disparity)[None, None] * (DISPARITY_PERCENT / sample.frame_width)
     gt_e = torch.from_numpy(sample.gt_exponent).permute(2, 0, 1)[None]
     sat = torch.from_numpy(sample.saturated)[None, None]
-    sup = supervised_loss(out.disparity_rel, gt_d, out.exponent, gt_e, sat, model.config.e_max, weights)
+    sup = supervised_loss(out.disparity_rel, gt_d, out.exponent, gt_e, sat, model.config.e_max, weights,
+                          scale_free=sample.disparity_invariant)
     parts = dict(sup.parts)
-    parts.update(disparity_metrics(out.disparity_rel.detach(), gt_d, sample.frame_width, sample.native_width))
+    parts.update(disparity_metrics(out.disparity_rel.detach(), gt_d, sample.frame_width, sample.native_width,
+                                   fitted=sample.disparity_invariant))
     total = weights.supervised * sup.total
     parts["total"] = total.item()
     return LossResult(total, parts)
 
 
 def disparity_metrics(disparity_rel: torch.Tensor, gt_rel: torch.Tensor, frame_width: float,
-                      native_width: float | None) -> dict[str, float]:
+                      native_width: float | None, fitted: bool = False) -> dict[str, float]:
     """Monitoring figures of a predicted D against the ground truth (no gradient).
 
     disparity_rel, gt_rel: (1, 1, H, W) D in percent of the frame width (gt NaN where unknown).
     Returns ``d_rms_px``: RMS of D - D_gt in px at ``native_width`` (DESIGN units; the working
-    width when None), and ``d_corr``: their Pearson correlation (0 when either is flat).
+    width when None; after the least-squares scale and shift if ``fitted``, for ground truth known
+    only up to them), and ``d_corr``: their Pearson correlation (0 when either is flat).
     """
     mask = torch.isfinite(gt_rel)
     if not bool(mask.any()):
         return {}
+    if fitted:
+        s, t = fit_scale_shift(disparity_rel, torch.where(mask, gt_rel, torch.zeros_like(gt_rel)), mask)
+        disparity_rel = s * disparity_rel + t
     p, g = disparity_rel[mask].double(), gt_rel[mask].double()
     width = float(native_width or frame_width)
     rms = float(((p - g) ** 2).mean().sqrt()) * width / DISPARITY_PERCENT
@@ -192,6 +201,9 @@ class Trainer(TrainingRun):
             raise InputError(f"whole_frame (--whole-frame) is a probability in [0, 1], got {s.whole_frame}")
         if not 0.0 <= s.gt_share <= 1.0:
             raise InputError(f"gt_share (--gt-share) is a probability in [0, 1], got {s.gt_share}")
+        if not 0.0 <= s.procedural_share <= 1.0:
+            raise InputError(f"procedural_share (--procedural-share) is a probability in [0, 1], got "
+                             f"{s.procedural_share}")
         if s.inference_max_pixels is not None and s.inference_max_pixels < 1:
             raise InputError(f"--inference-max-pixels {s.inference_max_pixels}: give a positive number of pixels")
         if s.iterations < 1 or s.batch < 1 or s.crop < 8 or s.lr <= 0 or s.checkpoint_every < 1:
@@ -202,12 +214,13 @@ class Trainer(TrainingRun):
         self.report = SkipReport()
         sources = []
         for root in s.data:
-            sources += harness_sources(root, self.report, ignore_prints=s.ignore_prints)
+            sources += training_sources(root, self.report, ignore_prints=s.ignore_prints)
         for folder in s.user_photos:
             sources += photo_sources(folder, self.run_dir / "photos", self.report, max_side=s.photo_max_side,
                                      motion=s.align_motion, progress=progress)
         self.data = TrainingSet(sources, Augment(crop=s.crop, scale_range=s.scale_range, whole_frame=s.whole_frame,
-                                                 gt_share=s.gt_share), self.report)
+                                                 gt_share=s.gt_share, procedural_share=s.procedural_share),
+                                self.report)
         self.vgg = load_vgg19(s.vgg19) if s.vgg19 is not None else None
         model_cfg = s.model
         checkpoint = self._load_checkpoint() if s.resume else None
@@ -259,7 +272,8 @@ class Trainer(TrainingRun):
             "engine_version": __version__,
             "data": [str(p) for p in s.data], "user_photos": [str(p) for p in s.user_photos],
             "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop,
-            "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share, "seed": s.seed,
+            "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share,
+            "procedural_share": s.procedural_share, "seed": s.seed,
             "ignore_prints": s.ignore_prints,
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),

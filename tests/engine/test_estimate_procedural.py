@@ -1,0 +1,141 @@
+"""Procedural training scenes: exact depth, occlusion, determinism, datasets on disk, scale-free loss."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from rvr_addon.cli import main
+from rvr_addon.errors import InputError
+from rvr_addon.estimate.data import Augment, SkipReport, TrainingSet, training_sources
+from rvr_addon.estimate.losses import LossWeights, supervised_loss
+from rvr_addon.estimate.procedural import (
+    Camera, Material, Rect, Scene, TexturePool, _box, mip_pyramid, random_frame, texture_paths, trace,
+    write_dataset,
+)
+
+TINY = ((48, 32), (40, 40))
+
+
+def grey() -> Material:
+    return Material(mip_pyramid(np.full((16, 16, 3), 0.5, np.float32)), 0.05)
+
+
+def level_camera(height_m: float, w: int = 40, h: int = 30, f: float = 30.0) -> Camera:
+    return Camera(np.array([0.0, height_m, 0.0]), np.eye(3), f, w, h, (w / 2, h / 2))
+
+
+@pytest.fixture(scope="module")
+def pool() -> TexturePool:
+    return TexturePool.from_paths(texture_paths([]))
+
+
+def test_floor_depth_is_exact():
+    """A level camera 1.5 m above an infinite floor: the row at y px below the centre sees the
+    floor at planar depth h f / y."""
+    cam = level_camera(1.5)
+    floor = Rect(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), (np.inf, np.inf), grey())
+    _, depth = trace(Scene(cam, [floor]), ss=1)
+    for row in range(16, 30):
+        y = row + 0.5 - 15
+        assert depth[row, 20] == pytest.approx(1.5 * 30.0 / y, rel=1e-9)
+    assert np.all(depth[:15] == 1e4)  # above the horizon: the sky
+
+
+def test_a_box_occludes_the_wall_behind_it(pool):
+    cam = level_camera(1.0)
+    wall = Rect(np.array([0, 0, 6.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), (np.inf, np.inf), grey())
+    box = _box(np.random.default_rng(0), pool, 0.0, 2.0, 0.6, 0.4, 2.0, 0.0)
+    _, depth = trace(Scene(cam, [wall] + box), ss=1)
+    assert depth[15, 20] == pytest.approx(1.8)  # the box's front face, z = 2 - 0.4 / 2
+    assert depth[15, 1] == pytest.approx(6.0)  # the wall beside it
+
+
+def test_random_frames_are_deterministic_and_consistent(pool):
+    a = random_frame(np.random.default_rng(7), pool, 48, 32)
+    b = random_frame(np.random.default_rng(7), pool, 48, 32)
+    c = random_frame(np.random.default_rng(8), pool, 48, 32)
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.disparity, b.disparity)
+    assert not np.array_equal(a.image, c.image)
+    assert a.image.shape == (32, 48, 3) and a.disparity.shape == (32, 48) and a.radiance.shape == (32, 48, 3)
+    assert np.array_equal(np.round(a.image * 255), a.image * 255) and 0 <= a.image.min() and a.image.max() <= 1
+    assert np.isfinite(a.disparity).all()
+    # D = K (1/S_ref - 1/S): strictly increasing with depth
+    order = np.argsort(a.depth.ravel())
+    assert np.all(np.diff(a.disparity.ravel()[order]) >= -1e-5)
+
+
+def test_dataset_resumes_and_refuses_another_seed(tmp_path, pool):
+    out = tmp_path / "proc"
+    assert write_dataset(out, 3, seed=4, pool=pool, sizes=TINY) == 3
+    first = (out / "input" / "frame_00002.png").read_bytes()
+    (out / "done" / "frame_00002.json").unlink()
+    assert write_dataset(out, 4, seed=4, pool=pool, sizes=TINY) == 2  # frame 2 again, and the new frame 4
+    assert (out / "input" / "frame_00002.png").read_bytes() == first  # same seed: the same frame
+    assert json.loads((out / "manifest.json").read_text())["frames"] == 4
+    with pytest.raises(InputError, match="seed 4"):
+        write_dataset(out, 4, seed=5, pool=pool, sizes=TINY)
+
+
+def test_procedural_frames_are_scale_free_ground_truth(tmp_path, pool):
+    out = tmp_path / "proc"
+    write_dataset(out, 2, seed=1, pool=pool, sizes=TINY)
+    report = SkipReport()
+    sources = training_sources(tmp_path, report)
+    assert len(sources) == 2 and report.total == 0
+    assert all(s.origin == "procedural" and s.kinds == ("gt",) and s.disparity_invariant for s in sources)
+    sample = TrainingSet(sources, Augment(crop=24)).draw(np.random.default_rng(0))
+    assert sample.kind == "gt" and sample.disparity_invariant
+    assert sample.gt_disparity.shape == sample.image.shape[:2] and np.isfinite(sample.gt_disparity).all()
+    assert sample.gt_exponent.shape == sample.image.shape
+
+
+def test_procedural_share_picks_the_pool(tmp_path, pool):
+    from estimate_synth import make_clip
+
+    write_dataset(tmp_path / "proc", 2, seed=1, pool=pool, sizes=TINY)
+    make_clip(tmp_path / "clip0", seed=5, frames=2)
+    sources = training_sources(tmp_path, SkipReport())
+    assert {s.origin for s in sources} == {"procedural", "harness"}
+    rng = np.random.default_rng(0)
+    for share, origin in ((1.0, "procedural"), (0.0, "harness")):
+        data = TrainingSet(sources, Augment(crop=24, procedural_share=share))
+        names = {data.draw(rng).name.split("/")[0] for _ in range(12)}
+        assert names == ({"proc"} if origin == "procedural" else {"clip0"})
+
+
+def test_scale_free_loss_ignores_a_positive_scale_and_shift_but_not_inversion():
+    gt = torch.linspace(-1, 2, 64).reshape(1, 1, 8, 8)
+    e = torch.zeros(1, 3, 8, 8)
+    w = LossWeights()
+    good = supervised_loss(3 * gt + 1, gt, e, None, None, 1.0, w, scale_free=True)
+    assert good.parts["sup_d"] == pytest.approx(0, abs=1e-5) and good.parts["sup_dgrad"] == pytest.approx(0, abs=1e-5)
+    flipped = supervised_loss(-gt, gt, e, None, None, 1.0, w, scale_free=True)
+    assert flipped.parts["sup_d"] > 1.2 * float((gt - gt.median()).abs().mean())  # worse than a flat map
+    invariant = supervised_loss(-gt, gt, e, None, None, 1.0, LossWeights(disparity_invariant=True))
+    assert invariant.parts["sup_d"] == pytest.approx(0, abs=1e-5)  # the least-squares fit would flip it
+    absolute = supervised_loss(3 * gt + 1, gt, e, None, None, 1.0, w)
+    assert absolute.parts["sup_d"] > 1
+    pred = (-gt).clone().requires_grad_(True)
+    supervised_loss(pred, gt, e, None, None, 1.0, w, scale_free=True).total.backward()
+    assert float((pred.grad.ravel() * (gt - gt.mean()).ravel()).sum()) < 0  # a step down the gradient un-inverts
+
+
+def test_cli_procedural_then_train(tmp_path, capsys):
+    data = tmp_path / "proc"
+    assert main(["procedural", "-o", str(data), "--frames", "2", "--seed", "3", "-q"]) == 0
+    assert "wrote 2 frames" in capsys.readouterr().out
+    run = tmp_path / "run"
+    assert main(["train", "--data", str(data), "-o", str(run), "--iterations", "2", "--crop", "32",
+                 "--checkpoint-every", "1", "-q"]) == 0
+    header = json.loads((run / "estimator.json").read_text())
+    assert header["training"]["training_data"]["procedural_frames"] == 2
+    rows = (run / "loss_log.csv").read_text().splitlines()[1:]
+    assert len(rows) == 2 and all(",gt,proc/" in r for r in rows)
+    assert main(["procedural", "-o", str(data), "--frames", "0"]) == 2
+    assert main(["procedural", "-o", str(data), "--frames", "2", "--seed", "9"]) == 2
+    assert "seed 3" in capsys.readouterr().err
+    assert math.isfinite(float(rows[-1].split(",")[2]))
