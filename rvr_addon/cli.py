@@ -365,6 +365,10 @@ def add_eval_estimator_parser(sub) -> None:
     p.add_argument("--data", action="append", type=Path, default=[], metavar="DIR",
                    help="held-out harness dataset (clips NOT used for training; repeatable)")
     p.add_argument("--motorcycle", action="store_true", help="also score the Middlebury 2014 motorcycle view")
+    p.add_argument("--real", nargs=2, action="append", type=Path, default=[], metavar=("IMAGE", "DISPARITY"),
+                   help="also score a real picture against its ground truth: a disparity or inverse-depth map "
+                        "(EXR/PNG/NPY/NPZ, <= 0 = unknown) of that view; keys estimate.real.<image stem>.* "
+                        "(repeatable)")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="REPORT", help="report folder")
     p.add_argument("--max-frames", type=int, metavar="N", help="at most N frames per clip")
     p.add_argument("--every", type=int, default=1, metavar="K", help="every K-th frame of a clip (default 1)")
@@ -388,7 +392,8 @@ def cmd_eval_estimator(args: argparse.Namespace) -> int:
     summary = evaluate(EvalSettings(output=args.output, weights=args.weights, data=list(args.data),
                                     motorcycle=args.motorcycle, max_frames=args.max_frames, every=args.every,
                                     compare_frames=args.compare_frames, force=args.force,
-                                    max_pixels=args.max_pixels), progress=not args.quiet)
+                                    max_pixels=args.max_pixels, real=[tuple(p) for p in args.real]),
+                       progress=not args.quiet)
     print(json.dumps(summary, indent=1, sort_keys=True))
     print(f"wrote {args.output}")
     return 0

@@ -198,6 +198,29 @@ def harness_frames(root: str | Path, max_frames: int | None = None, every: int =
             yield EvalFrame(f"{clip.name}/{stem}", image, d, rad)
 
 
+def real_pair(image: Path, disparity: Path) -> tuple[str, np.ndarray, np.ndarray]:
+    """(name, image (H, W, 3) uint8 RGB, ground truth (H, W) float32, NaN where invalid) of a real
+    picture and its disparity (any affine of inverse depth: stereo disparity, a depth sensor's
+    1/Z) as EXR/PNG/NPY/NPZ. Values <= 0 or non-finite are invalid (Middlebury's 0 = unknown).
+    The name is the image's stem. Raises InputError naming the file."""
+    from ..io.maps import read_map
+    from ..io.video import read_image_rgb8
+
+    try:
+        rgb = read_image_rgb8(image)
+    except Exception as ex:
+        raise InputError(f"--real image {image}: {ex}") from ex
+    gt = read_map(Path(disparity), "disparity")
+    if gt.shape != rgb.shape[:2]:
+        raise InputError(f"--real disparity {disparity} is {gt.shape[1]}x{gt.shape[0]} but the image {image} is "
+                         f"{rgb.shape[1]}x{rgb.shape[0]}; give the map of that very view")
+    gt = np.where(np.isfinite(gt) & (gt > 0), gt, np.nan).astype(np.float32)
+    if np.isfinite(gt).sum() < 2:
+        raise InputError(f"--real disparity {disparity} has no valid pixel (all <= 0 or not finite)")
+    name = "".join(c if c.isalnum() or c in "-_" else "_" for c in Path(image).stem)
+    return name, rgb, gt
+
+
 def motorcycle() -> tuple[np.ndarray, np.ndarray]:
     """(left view (500, 741, 3) uint8 RGB, disparity (500, 741) float32 with NaN where invalid)
     of Middlebury 2014 'Motorcycle' as shipped in scikit-image (``skimage.data.stereo_motorcycle``).
@@ -276,6 +299,8 @@ class EvalSettings:
     max_pixels: int | None = None
     """Run the network's trunk on a copy shrunk to at most this many pixels (D is still sliced
     and E gated at full resolution; ``rvr estimate``'s default when None)."""
+    real: list[tuple[Path, Path]] = field(default_factory=list)
+    """Real pictures with ground truth: (image, disparity or inverse-depth map) pairs."""
 
 
 def _check_target(report: Path, force: bool) -> None:
@@ -304,8 +329,10 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
     from .infer import Estimator, default_weights, load_estimator
 
     s = settings
-    if not s.data and not s.motorcycle:
-        raise InputError("nothing to evaluate: pass --data HELDOUT_DATASET (harness clips) and/or --motorcycle")
+    if not s.data and not s.motorcycle and not s.real:
+        raise InputError("nothing to evaluate: pass --data HELDOUT_DATASET (harness clips), --motorcycle and/or "
+                         "--real IMAGE DISPARITY")
+    pairs = [real_pair(Path(i), Path(d)) for i, d in s.real]  # bad files fail before any work
     report = Path(s.output)
     _check_target(report, s.force)
     model = load_estimator(s.weights if s.weights is not None else default_weights())
@@ -387,6 +414,15 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
             summary["estimate.motorcycle.corr"] = pearson(d, disp, valid)
             summary["estimate.motorcycle.valid_fraction"] = float(valid.mean())
             comparison_image(left, disp, d, tmp / "compare_motorcycle.png", show_raw=False)
+        for name, rgb, gt in pairs:
+            d, _ = est(rgb)
+            valid = np.isfinite(gt)
+            key = f"estimate.real.{name}"
+            summary[f"{key}.affine_invariant_error"] = affine_invariant_error(d, gt, valid)
+            summary[f"{key}.baseline_error"] = affine_invariant_error(vertical_ramp(*gt.shape), gt, valid)
+            summary[f"{key}.corr"] = pearson(d, gt, valid)
+            summary[f"{key}.valid_fraction"] = float(valid.mean())
+            comparison_image(rgb, gt, d, tmp / f"compare_real_{name}.png", show_raw=False)
         summary["estimate.eval_s"] = time.perf_counter() - t_start
         _write_report(tmp, summary, rows, skipped, model, s)
         replace_folder(tmp, report)
@@ -437,6 +473,12 @@ def _write_report(folder: Path, summary: dict, rows: list[dict], skipped: list[s
                "|---|---|",
                f"| ours | {_fmt(g('estimate.motorcycle.affine_invariant_error'))} |",
                f"| vertical ramp (nearer toward the bottom) | {_fmt(g('estimate.motorcycle.baseline_error'))} |", ""]
+    for name in sorted({k.split(".")[2] for k in summary if k.startswith("estimate.real.")}):
+        key = f"estimate.real.{name}"
+        md += [f"Real picture `{name}` ({100 * g(key + '.valid_fraction', 0):.0f}% valid GT pixels):", "",
+               "| affine-invariant error (1 = a constant) | value |", "|---|---|",
+               f"| ours | {_fmt(g(key + '.affine_invariant_error'))} |",
+               f"| vertical ramp (nearer toward the bottom) | {_fmt(g(key + '.baseline_error'))} |", ""]
     md += ["Pictures: `compare_*.png` = input | GT D | ours D as predicted (GT colour range) | ours D after the "
            "least-squares scale + shift (viridis over GT's 2-98th percentiles; black = no GT).", "",
            "How to read it: the disparity figures are fitted per frame because focus and aperture rescale and "

@@ -123,6 +123,14 @@ def _read_raw(path: Path, kind: str, prefix: str = "") -> np.ndarray:
     return array
 
 
+def read_map(path: Path, kind: str = "disparity") -> np.ndarray:
+    """One map file (EXR / PNG and other images / NPY / NPZ) as float32 (H, W) (``kind`` "hdr":
+    or (H, W, 3)); 8/16-bit images scaled to [0, 1]. Raises InputError naming the file."""
+    if not Path(path).is_file():
+        raise InputError(f"map '{path}' not found; check the path")
+    return _read_raw(Path(path), kind)
+
+
 def fill_nonfinite(array: np.ndarray) -> tuple[np.ndarray, int]:
     """Replace NaN/inf by the nearest finite value, per channel. Returns (filled, count replaced).
 

@@ -163,3 +163,38 @@ def test_ablation_estimator_rows_unavailable_without_weights_and_run_with_them(t
         assert math.isfinite(s[f"ablation.{name}.psnr_srgb_db"]), name
     assert ab is not None and not ab.unavailable
     estimator_inputs.configure(None)
+
+
+def test_real_picture_with_ground_truth(tiny_weights, tmp_path, capsys):
+    """--real IMAGE DISPARITY scores any real view: the keys match the metric computed by hand on
+    the estimator's own output, 0 = unknown is left out, a size mismatch names both files."""
+    import cv2
+
+    from rvr_addon.estimate.evaluate import pearson, vertical_ramp
+    from rvr_addon.estimate.infer import Estimator, load_estimator
+
+    rng = np.random.default_rng(3)
+    img = (rng.random((40, 56, 3)) * 255).astype(np.uint8)
+    disp = np.tile(np.linspace(10, 60, 40, dtype=np.float32)[:, None], (1, 56))
+    disp[:5, :7] = 0  # unknown
+    cv2.imwrite(str(tmp_path / "view L.png"), img[..., ::-1])
+    np.save(tmp_path / "gt.npy", disp)
+    assert main(["eval-estimator", "--weights", str(tiny_weights), "--real", str(tmp_path / "view L.png"),
+                 str(tmp_path / "gt.npy"), "-o", str(tmp_path / "r"), "-q"]) == 0
+    summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+    d, _ = Estimator(load_estimator(tiny_weights))(img)
+    gt = np.where(disp > 0, disp, np.nan)
+    valid = np.isfinite(gt)
+    assert summary["estimate.real.view_L.affine_invariant_error"] == pytest.approx(affine_invariant_error(d, gt, valid))
+    assert summary["estimate.real.view_L.baseline_error"] == pytest.approx(
+        affine_invariant_error(vertical_ramp(40, 56), gt, valid))
+    assert summary["estimate.real.view_L.baseline_error"] < 1e-3  # this GT *is* a ramp
+    assert summary["estimate.real.view_L.corr"] == pytest.approx(pearson(d, gt, valid))
+    assert summary["estimate.real.view_L.valid_fraction"] == pytest.approx(1 - 35 / (40 * 56))
+    assert (tmp_path / "r" / "compare_real_view_L.png").is_file()
+    assert "Real picture `view_L`" in (tmp_path / "r" / "README.md").read_text()
+    np.save(tmp_path / "small.npy", disp[:20])
+    assert main(["eval-estimator", "--weights", str(tiny_weights), "--real", str(tmp_path / "view L.png"),
+                 str(tmp_path / "small.npy"), "-o", str(tmp_path / "r2"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "small.npy" in err and "view L.png" in err and not (tmp_path / "r2").exists()
