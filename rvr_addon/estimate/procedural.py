@@ -397,19 +397,19 @@ def _box_faces(rng, pool, x, z, w, dep, h, yaw, y0=0.0, mat=None) -> list[Rect]:
 
 def _figure(rng, pool, x, z, scale) -> list:
     """A person-like figure: legs, torso, arms (cylinders), a head (sphere)."""
-    skin = Material(mip_pyramid(np.clip(procedural_texture(rng, 32) * 0 + _random_colour(rng) * 0.9 + 0.05, 0, 1)
-                                .astype(np.float32)), 0.01)
+    procedural_texture(rng, 32)  # drawn and unused: keeps generator 2's random stream (the skin is plain)
+    skin = Material(mip_pyramid(np.full((32, 32, 3), np.clip(_random_colour(rng) * 0.9 + 0.05, 0, 1), np.float32)),
+                    0.01)
     top, legs = _material(rng, pool, 0.2, 0.6), _material(rng, pool, 0.2, 0.6)
     r = 0.16 * scale
     parts = [Cylinder(x - 0.08 * scale, z, 0.07 * scale, 0.0, 0.85 * scale, legs),
-                   Cylinder(x + 0.08 * scale, z, 0.07 * scale, 0.0, 0.85 * scale, legs),
-                   Cylinder(x, z, r, 0.85 * scale, 1.45 * scale, top),
-                   Rect(np.array([x, 1.45 * scale, z]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), (r, r), top,
-                        "disc"),
-                   Cylinder(x - r - 0.05 * scale, z, 0.045 * scale, 0.8 * scale, 1.42 * scale, top),
-                   Cylinder(x + r + 0.05 * scale, z, 0.045 * scale, 0.8 * scale, 1.42 * scale, top),
-                   Cylinder(x, z, 0.05 * scale, 1.45 * scale, 1.55 * scale, skin),
-                   Sphere(np.array([x, 1.64 * scale, z]), 0.11 * scale, skin)]
+             Cylinder(x + 0.08 * scale, z, 0.07 * scale, 0.0, 0.85 * scale, legs),
+             Cylinder(x, z, r, 0.85 * scale, 1.45 * scale, top),
+             Rect(np.array([x, 1.45 * scale, z]), np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), (r, r), top, "disc"),
+             Cylinder(x - r - 0.05 * scale, z, 0.045 * scale, 0.8 * scale, 1.42 * scale, top),
+             Cylinder(x + r + 0.05 * scale, z, 0.045 * scale, 0.8 * scale, 1.42 * scale, top),
+             Cylinder(x, z, 0.05 * scale, 1.45 * scale, 1.55 * scale, skin),
+             Sphere(np.array([x, 1.64 * scale, z]), 0.11 * scale, skin)]
     return [Group.around(parts, np.array([[x - 0.3 * scale, 0, z - 0.3 * scale],
                                           [x + 0.3 * scale, 1.76 * scale, z + 0.3 * scale]]))]
 
@@ -427,8 +427,8 @@ def _table(rng, pool, x, z, w, dep, h, yaw) -> list:
 
 
 def _shelf(rng, pool, x, z) -> list[Group]:
-    """A shelf unit (side boards, shelf boards) standing against a wall at depth z, with boxes and
-    balls on its shelves."""
+    """A shelf unit (side boards, shelf boards) standing against a wall at depth z, with boxes of
+    random sizes and materials on its shelves."""
     w, h, dep = rng.uniform(0.6, 2.2), rng.uniform(0.8, 2.2), rng.uniform(0.25, 0.45)
     wood = _material(rng, pool, 0.3, 1.2)
     parts: list = []
@@ -463,16 +463,12 @@ def _place(rng: np.random.Generator, cam: Camera, near: float, far: float, sprea
     return float(cam.position[0] + dist * math.sin(yaw)), float(cam.position[2] + dist * math.cos(yaw))
 
 
-def random_scene(rng: np.random.Generator, pool: TexturePool, width: int, height: int,
-                 crop: tuple[int, int, int, int] | None = None) -> Scene:
-    """A random room or street seen by a phone-like camera. ``crop`` (x0, y0, w, h): render only
-    that window of the ``width`` x ``height`` frame (the principal point stays the frame's centre)."""
+def random_scene(rng: np.random.Generator, pool: TexturePool, width: int, height: int) -> Scene:
+    """A random room or street seen by a phone-like camera (horizontal field of view 45-82 deg)
+    in a frame of ``width`` x ``height`` px."""
     hfov = math.radians(rng.uniform(45, 82))
     f_px = width / (2 * math.tan(hfov / 2))
     cx, cy = width / 2, height / 2
-    if crop is not None:
-        x0, y0, cw, ch = crop
-        cx, cy, width, height = cx - x0, cy - y0, cw, ch
     outdoor = rng.random() < 0.3
     cam_h = rng.uniform(0.5, 1.9) if not outdoor else rng.uniform(1.0, 2.2)
     pitch = math.radians(rng.uniform(-30, 5))
@@ -708,10 +704,9 @@ def render_scene(scene: Scene, rng: np.random.Generator, ss: int = 2, k_rel: flo
     return ProceduralFrame(srgb.astype(np.float32), lin.astype(np.float32), disparity, s.astype(np.float32))
 
 
-def random_frame(rng: np.random.Generator, pool: TexturePool, width: int, height: int,
-                 crop: tuple[int, int, int, int] | None = None) -> ProceduralFrame:
-    """A new random scene rendered at ``width`` x ``height`` (or its ``crop`` window)."""
-    return render_scene(random_scene(rng, pool, width, height, crop), rng)
+def random_frame(rng: np.random.Generator, pool: TexturePool, width: int, height: int) -> ProceduralFrame:
+    """A new random scene rendered at ``width`` x ``height``."""
+    return render_scene(random_scene(rng, pool, width, height), rng)
 
 
 # ------------------------------------------------------------------------------ datasets on disk
