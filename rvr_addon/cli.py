@@ -282,6 +282,9 @@ def add_procedural_parser(sub) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="dataset folder")
     p.add_argument("--frames", type=int, default=2000, help="number of frames (default 2000)")
     p.add_argument("--seed", type=int, default=1, help="dataset seed: frame i is drawn from (seed, i) (default 1)")
+    p.add_argument("--generator", type=int, default=None, metavar="VERSION",
+                   help="generator version (default: the latest; 2 = rooms and streets only, as the shipped "
+                        "weights' older dataset)")
     p.add_argument("--textures", action="append", type=Path, default=[], metavar="DIR",
                    help="folder of photographs (png/jpg, recursively) to cut material textures from (repeatable); "
                         "scikit-image's sample photographs are always added (never the Motorcycle pair)")
@@ -290,7 +293,7 @@ def add_procedural_parser(sub) -> None:
 
 
 def cmd_procedural(args: argparse.Namespace) -> int:
-    from .estimate.procedural import TexturePool, texture_paths, write_dataset
+    from .estimate.procedural import GENERATOR_VERSION, TexturePool, texture_paths, write_dataset
 
     if args.frames < 1:
         raise RvrError(f"--frames must be at least 1, got {args.frames}")
@@ -298,7 +301,8 @@ def cmd_procedural(args: argparse.Namespace) -> int:
     if not pool.images:
         print("rvr procedural: no photographs found (install scikit-image or pass --textures DIR); "
               "using procedural textures only", file=sys.stderr)
-    made = write_dataset(args.output, args.frames, args.seed, pool, progress=not args.quiet)
+    made = write_dataset(args.output, args.frames, args.seed, pool, progress=not args.quiet,
+                         version=args.generator or GENERATOR_VERSION)
     print(f"wrote {made} frames to {args.output} ({args.frames} in all, {len(pool.images)} photographs)")
     return 0
 

@@ -40,6 +40,8 @@ EXCLUDED_NAMES = ("motorcycle_left.png", "motorcycle_right.png")
 SKIMAGE_PHOTOS = ("astronaut.png", "chelsea.png", "coffee.png", "rocket.jpg", "brick.png", "grass.png",
                   "gravel.png", "camera.png")
 MAX_TEXTURE_PX = 512
+CLOSEUP_SHARE = 1 / 3
+"""Share of close-up scenes (generator version 3 on)."""
 MIP_LEVELS = 5
 FAR_M = 1.0e4
 """Depth of the sky (m): D is K / S_ref there, up to 1e-4 of K."""
@@ -453,6 +455,99 @@ def _shelf(rng, pool, x, z) -> list[Group]:
     return [Group.around(parts, np.array([[x - w / 2 - 0.1, 0, z - dep], [x + w / 2 + 0.1, h + 0.1, z + dep]]))]
 
 
+def _plant(rng, pool, x, z, scale=1.0, y0=0.0) -> list[Group]:
+    """A pot plant: a pot (cylinder) and 6-20 long thin leaves fanning out from its top (~0.5 m
+    tall at ``scale`` 1)."""
+    pot_r, pot_h = rng.uniform(0.06, 0.2) * scale, rng.uniform(0.08, 0.3) * scale
+    pot = _material(rng, pool, 0.2, 0.6)
+    green = pick_texture(rng, pool)
+    lum = green.mean(axis=2, keepdims=True)
+    leaf_rgb = np.array([rng.uniform(0.05, 0.3), rng.uniform(0.25, 0.6), rng.uniform(0.03, 0.25)], np.float32)
+    leaf = Material(mip_pyramid((lum / max(float(lum.mean()), 1e-4) * leaf_rgb).clip(0.003, 0.95).astype(np.float32)),
+                    rng.uniform(0.1, 0.4) / green.shape[1])
+    top = np.array([x, y0 + pot_h, z])
+    parts: list = [Cylinder(x, z, pot_r, y0, y0 + pot_h, pot),
+                   Rect(top, np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), (pot_r, pot_r), pot, "disc")]
+    reach = 0.0
+    for _ in range(int(rng.integers(6, 21))):
+        length, width = rng.uniform(0.15, 0.6) * scale, rng.uniform(0.01, 0.04) * scale
+        az, el = rng.uniform(-math.pi, math.pi), math.radians(rng.uniform(15, 85))
+        along = np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+        across = np.array([math.cos(az), 0.0, -math.sin(az)])
+        parts.append(Rect(top + along * length / 2, across, along, (width, length / 2), leaf))
+        reach = max(reach, length)
+    return [Group.around(parts, np.array([[x - reach, y0, z - reach], [x + reach, y0 + pot_h + reach, z + reach]]))]
+
+
+def closeup_scene(rng: np.random.Generator, pool: TexturePool, width: int, height: int) -> Scene:
+    """Things photographed from close by: 3-9 boxes, balls, pots, plants and figurines (each a tenth
+    to half the frame wide) on a floor or table top, from the nearest floor point in view to the
+    backdrop (a wall or curtain 1.2-5 m away, sometimes a second, further
+    one beside it), lit by a key light, ambient light and sometimes lamps."""
+    hfov = math.radians(rng.uniform(40, 75))
+    f_px = width / (2 * math.tan(hfov / 2))
+    cam_h = rng.uniform(0.4, 1.4)
+    pitch = math.radians(rng.uniform(-30, 0))
+    rot = _rot(math.radians(rng.uniform(-20, 20)), pitch, math.radians(rng.uniform(-3, 3)))
+    cam = Camera(np.array([0.0, cam_h, 0.0]), rot, f_px, width, height, (width / 2, height / 2))
+    scene = Scene(cam)
+    objs = scene.objects
+    x_ax, up, z_ax = np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0])
+    objs.append(Rect(np.zeros(3), x_ax, z_ax, (np.inf, np.inf), _material(rng, pool, 0.3, 1.5)))
+    back = rng.uniform(1.2, 5.0)
+    objs.append(Rect(np.array([0, 0, back]), x_ax, up, (np.inf, np.inf), _material(rng, pool, 0.4, 2.0)))
+    if rng.random() < 0.25:  # a nearer backdrop panel on one side (a cupboard, a screen, a door)
+        side = rng.choice([-1.0, 1.0])
+        objs.append(Rect(np.array([side * rng.uniform(0.5, 1.5), 0, back * rng.uniform(0.6, 0.9)]), x_ax, up,
+                         (rng.uniform(0.2, 0.6), rng.uniform(1.0, 3.0)), _material(rng, pool, 0.3, 1.5)))
+    # the nearest floor point in view (the frame's bottom edge, 80 % down), so things are seen whole
+    below = -pitch + math.atan(height / (2 * f_px)) * 0.8
+    nearest = cam_h / math.tan(below) if below > 0.05 else back
+    nearest = min(max(0.5, nearest), back * 0.7)
+    for _ in range(int(rng.integers(3, 10))):
+        x, z = _place(rng, cam, nearest, max(back - 0.2, nearest * 1.1), 0.8)
+        kind = rng.choice(["box", "ball", "pot", "plant", "figure"], p=[0.3, 0.2, 0.15, 0.2, 0.15])
+        seen = math.hypot(x - cam.position[0], z - cam.position[2]) * width / f_px  # frame width there (m)
+        size = seen * rng.uniform(0.1, 0.45)
+        if kind == "box":
+            objs += _box(rng, pool, x, z, size, size * rng.uniform(0.4, 1.5), size * rng.uniform(0.4, 2.0),
+                         rng.uniform(-math.pi, math.pi))
+        elif kind == "ball":
+            objs.append(Sphere(np.array([x, size / 2, z]), size / 2, _material(rng, pool, 0.1, 0.6)))
+        elif kind == "pot":
+            mat = _material(rng, pool, 0.1, 0.6)
+            h = size * rng.uniform(0.6, 2.5)
+            objs += [Cylinder(x, z, size / 2, 0.0, h, mat),
+                     Rect(np.array([x, h, z]), x_ax, z_ax, (size / 2, size / 2), mat, "disc")]
+        elif kind == "plant":
+            objs += _plant(rng, pool, x, z, size / 0.4)
+        else:
+            objs += _figure(rng, pool, x, z, min(size * rng.uniform(1.5, 3.0), 1.1))
+    scene.sun = np.array([rng.uniform(-1, 1), rng.uniform(0.4, 1.0), rng.uniform(-1, 0.2)])
+    scene.sun_rgb = np.array([1.0, 0.97, 0.9], np.float32) * rng.uniform(0.5, 2.0)
+    scene.ambient_rgb = np.array([1.0, 0.97, 0.93], np.float32) * rng.uniform(0.15, 0.6)
+    for _ in range(int(rng.integers(0, 3))):
+        p = np.array([rng.uniform(-1.5, 1.5), rng.uniform(0.5, 2.0), rng.uniform(0.5, back - 0.1)])
+        rgb = np.array([1.0, rng.uniform(0.6, 0.95), rng.uniform(0.3, 0.8)], np.float32) * rng.uniform(0.2, 1.5)
+        scene.lamps.append((p, rgb))
+        objs.append(Sphere(p, rng.uniform(0.01, 0.05),
+                           Material(mip_pyramid(np.ones((8, 8, 3), np.float32) * rgb / rgb.max()), 0.05,
+                                    emission=rng.uniform(5, 150))))
+    _add_contacts(scene)
+    return scene
+
+
+def _add_contacts(scene: Scene) -> None:
+    """Soft contact shadows under every group, ball and cylinder standing on the floor."""
+    for o in scene.objects:
+        if isinstance(o, Group) and o.centre[1] - o.radius < 0.5:
+            scene.contacts.append((float(o.centre[0]), float(o.centre[2]), o.radius * 0.7))
+        elif isinstance(o, (Sphere, Cylinder)):
+            c = o.centre if isinstance(o, Sphere) else np.array([o.x, 0.0, o.z])
+            if isinstance(o, Cylinder) or o.centre[1] - o.radius < 0.05:
+                scene.contacts.append((float(c[0]), float(c[2]), o.radius * 1.2))
+
+
 def _place(rng: np.random.Generator, cam: Camera, near: float, far: float, spread: float = 0.9) -> tuple[float, float]:
     """A floor point roughly in view: at a random distance, within the horizontal field of view."""
     dist = math.exp(rng.uniform(math.log(near), math.log(far)))
@@ -463,9 +558,14 @@ def _place(rng: np.random.Generator, cam: Camera, near: float, far: float, sprea
     return float(cam.position[0] + dist * math.sin(yaw)), float(cam.position[2] + dist * math.cos(yaw))
 
 
-def random_scene(rng: np.random.Generator, pool: TexturePool, width: int, height: int) -> Scene:
+def random_scene(rng: np.random.Generator, pool: TexturePool, width: int, height: int,
+                 version: int = 3) -> Scene:
     """A random room or street seen by a phone-like camera (horizontal field of view 45-82 deg)
-    in a frame of ``width`` x ``height`` px."""
+    in a frame of ``width`` x ``height`` px; from generator version 3 on, a close-up (things on a
+    floor or table in front of a backdrop, 1.2-5 m away) one time in three. ``version`` 2 draws
+    exactly what that version drew (datasets stay reproducible)."""
+    if version >= 3 and rng.random() < CLOSEUP_SHARE:
+        return closeup_scene(rng, pool, width, height)
     hfov = math.radians(rng.uniform(45, 82))
     f_px = width / (2 * math.tan(hfov / 2))
     cx, cy = width / 2, height / 2
@@ -574,13 +674,7 @@ def random_scene(rng: np.random.Generator, pool: TexturePool, width: int, height
             objs += _box(rng, pool, x, z, *rng.uniform(0.4, 1.2, 2), rng.uniform(0.4, cam_h + 0.3), rng.uniform(-1, 1))
         else:
             objs += _figure(rng, pool, x, z, rng.uniform(0.85, 1.1))
-    for o in objs:
-        if isinstance(o, Group) and o.centre[1] - o.radius < 0.5:
-            scene.contacts.append((float(o.centre[0]), float(o.centre[2]), o.radius * 0.7))
-        elif isinstance(o, (Sphere, Cylinder)):
-            c = o.centre if isinstance(o, Sphere) else np.array([o.x, 0.0, o.z])
-            if isinstance(o, Cylinder) or o.centre[1] - o.radius < 0.05:
-                scene.contacts.append((float(c[0]), float(c[2]), o.radius * 1.2))
+    _add_contacts(scene)
     return scene
 
 
@@ -704,16 +798,19 @@ def render_scene(scene: Scene, rng: np.random.Generator, ss: int = 2, k_rel: flo
     return ProceduralFrame(srgb.astype(np.float32), lin.astype(np.float32), disparity, s.astype(np.float32))
 
 
-def random_frame(rng: np.random.Generator, pool: TexturePool, width: int, height: int) -> ProceduralFrame:
-    """A new random scene rendered at ``width`` x ``height``."""
-    return render_scene(random_scene(rng, pool, width, height), rng)
+def random_frame(rng: np.random.Generator, pool: TexturePool, width: int, height: int,
+                 version: int = 3) -> ProceduralFrame:
+    """A new random scene rendered at ``width`` x ``height`` (generator ``version``)."""
+    return render_scene(random_scene(rng, pool, width, height, version), rng)
 
 
 # ------------------------------------------------------------------------------ datasets on disk
 
 PROCEDURAL_FORMAT = "rvr-laaf-procedural/1"
-GENERATOR_VERSION = 2
-"""Bump when the same seed would draw a different scene (the manifest records it)."""
+GENERATOR_VERSION = 3
+"""Bump when the same seed would draw a different scene (the manifest records it); older
+versions stay available (``rvr procedural --generator``) so their datasets can be rebuilt."""
+GENERATOR_VERSIONS = (2, 3)
 FRAME_SIZES = ((320, 180), (288, 216), (240, 240), (180, 320), (300, 200))
 """Frame sizes (w, h) a dataset draws from: ~57,600 px, landscape, square and portrait."""
 
@@ -725,7 +822,7 @@ def frame_rng(seed: int, index: int) -> np.random.Generator:
 
 
 def write_frame(folder: Path, index: int, seed: int, pool: TexturePool,
-                sizes: tuple[tuple[int, int], ...] = FRAME_SIZES) -> None:
+                sizes: tuple[tuple[int, int], ...] = FRAME_SIZES, version: int = GENERATOR_VERSION) -> None:
     """Render frame ``index`` of the dataset in ``folder``: input PNG, gt/disparity EXR (D in px at
     the frame's width, Z planar depth in m), gt/hdr EXR (linear R, G, B on the input's exposure),
     then its done marker listing the files and their sizes (the marker is written last)."""
@@ -735,7 +832,7 @@ def write_frame(folder: Path, index: int, seed: int, pool: TexturePool,
 
     rng = frame_rng(seed, index)
     w, h = sizes[int(rng.integers(len(sizes)))]
-    fr = random_frame(rng, pool, w, h)
+    fr = random_frame(rng, pool, w, h, version)
     name = f"frame_{index:05d}"
     rel = {"input": f"input/{name}.png", "disparity": f"gt/disparity/{name}.exr", "hdr": f"gt/hdr/{name}.exr"}
     (folder / "input").mkdir(parents=True, exist_ok=True)
@@ -745,7 +842,7 @@ def write_frame(folder: Path, index: int, seed: int, pool: TexturePool,
     write_exr(folder / rel["disparity"], {"D": fr.disparity, "Z": fr.depth})
     write_exr(folder / rel["hdr"], {"R": fr.radiance[..., 0], "G": fr.radiance[..., 1], "B": fr.radiance[..., 2]},
               half=True)
-    marker = {"frame": index, "seed": seed, "generator_version": GENERATOR_VERSION,
+    marker = {"frame": index, "seed": seed, "generator_version": version,
               "files": {v: (folder / v).stat().st_size for v in rel.values()}}
     (folder / "done").mkdir(exist_ok=True)
     tmp = folder / "done" / f".{name}.json.tmp"
@@ -754,27 +851,29 @@ def write_frame(folder: Path, index: int, seed: int, pool: TexturePool,
 
 
 def write_dataset(folder: str | Path, frames: int, seed: int, pool: TexturePool, progress: bool = False,
-                  sizes: tuple[tuple[int, int], ...] = FRAME_SIZES) -> int:
+                  sizes: tuple[tuple[int, int], ...] = FRAME_SIZES, version: int = GENERATOR_VERSION) -> int:
     """Write (or complete) a procedural dataset of ``frames`` frames in ``folder``, each of one of
     ``sizes`` (w, h); frames whose done marker exists are kept. Returns the number of frames
     rendered now. A folder written with another seed or generator version is refused
-    (InputError naming it)."""
+    (InputError naming it), as is a version this module cannot draw."""
+    if version not in GENERATOR_VERSIONS:
+        raise InputError(f"generator version {version} is not available; choose one of {GENERATOR_VERSIONS}")
     from tqdm import tqdm
 
     folder = Path(folder)
     manifest = folder / "manifest.json"
-    record = {"format": PROCEDURAL_FORMAT, "generator_version": GENERATOR_VERSION, "seed": int(seed),
+    record = {"format": PROCEDURAL_FORMAT, "generator_version": int(version), "seed": int(seed),
               "frames": int(frames), "textures": list(pool.names)}
     if manifest.is_file():
         old = json.loads(manifest.read_text())
-        if old.get("seed") != seed or old.get("generator_version") != GENERATOR_VERSION:
+        if old.get("seed") != seed or old.get("generator_version") != version:
             raise InputError(f"{folder} holds a procedural dataset of seed {old.get('seed')} (generator "
-                             f"{old.get('generator_version')}); pass --seed {old.get('seed')} to extend it, or "
-                             "another output folder")
+                             f"{old.get('generator_version')}); pass --seed {old.get('seed')} --generator "
+                             f"{old.get('generator_version')} to extend it, or another output folder")
         record["frames"] = max(int(old.get("frames", 0)), int(frames))
     folder.mkdir(parents=True, exist_ok=True)
     manifest.write_text(json.dumps(record, indent=1))
     todo = [i for i in range(1, frames + 1) if not (folder / "done" / f"frame_{i:05d}.json").is_file()]
     for i in tqdm(todo, desc="procedural frames", unit="frame", disable=not progress):
-        write_frame(folder, i, seed, pool, sizes)
+        write_frame(folder, i, seed, pool, sizes, version)
     return len(todo)

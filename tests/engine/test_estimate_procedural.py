@@ -136,6 +136,36 @@ def test_cli_procedural_then_train(tmp_path, capsys):
     rows = (run / "loss_log.csv").read_text().splitlines()[1:]
     assert len(rows) == 2 and all(",gt,proc/" in r for r in rows)
     assert main(["procedural", "-o", str(data), "--frames", "0"]) == 2
+    assert main(["procedural", "-o", str(tmp_path / "v9"), "--frames", "1", "--generator", "9"]) == 2
+    assert "generator version 9" in capsys.readouterr().err
     assert main(["procedural", "-o", str(data), "--frames", "2", "--seed", "9"]) == 2
     assert "seed 3" in capsys.readouterr().err
     assert math.isfinite(float(rows[-1].split(",")[2]))
+
+
+def test_generator_versions(tmp_path, pool, monkeypatch):
+    """Version 3 draws a close-up when its first number is below 1/3; version 2 never does (so its
+    datasets rebuild exactly); unknown versions are refused."""
+    from rvr_addon.estimate import procedural
+
+    calls = []
+    monkeypatch.setattr(procedural, "closeup_scene", lambda rng, *a: calls.append(1) or Scene(level_camera(1.0)))
+    for seed in range(12):
+        procedural.random_scene(np.random.default_rng([seed]), pool, 48, 32, version=2)
+    assert calls == []
+    expected = sum(np.random.default_rng([seed]).random() < 1 / 3 for seed in range(12))
+    for seed in range(12):
+        procedural.random_scene(np.random.default_rng([seed]), pool, 48, 32, version=3)
+    assert len(calls) == expected > 0
+    monkeypatch.undo()
+    # a close-up frames things: more than the floor and the backdrop are in view
+    for seed in range(4):
+        scene = procedural.closeup_scene(np.random.default_rng(seed), pool, 64, 36)
+        _, depth = trace(scene, ss=1)
+        planes = {round(float(v), 3) for v in np.unique(np.round(depth, 3))}
+        assert len(planes) > 10
+    with pytest.raises(InputError, match="generator version 9"):
+        write_dataset(tmp_path / "x", 1, seed=1, pool=pool, version=9)
+    write_dataset(tmp_path / "v2", 1, seed=1, pool=pool, sizes=TINY, version=2)
+    with pytest.raises(InputError, match="--generator 2"):
+        write_dataset(tmp_path / "v2", 2, seed=1, pool=pool, sizes=TINY, version=3)
