@@ -774,6 +774,25 @@ def photo_sources(folder: str | Path, cache: Path, report: SkipReport, max_side:
 # ------------------------------------------------------------------------------ drawing samples
 
 
+def degrade_like_footage(srgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """What a phone does to a frame, at random strengths: a slight blur (sigma 0.3-1.2 px) half
+    the time, sensor noise (0-2 % of full scale, stronger in the dark), JPEG at quality 35-90.
+    srgb: (H, W, 3) float32 in [0, 1]; returns the same shape, 8-bit values."""
+    import cv2
+
+    out = srgb.astype(np.float32)
+    if rng.random() < 0.5:
+        out = cv2.GaussianBlur(out, (0, 0), float(rng.uniform(0.3, 1.2)))
+    sigma = float(rng.uniform(0.0, 0.02))
+    out = out + rng.normal(0.0, 1.0, out.shape).astype(np.float32) * sigma * np.sqrt(1.05 - out)
+    u8 = np.clip(np.round(out * 255), 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", u8[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(35, 91))])
+    if ok:
+        u8 = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
+    return np.ascontiguousarray(u8, dtype=np.float32) / 255.0
+
+
+
 @dataclass(frozen=True)
 class Augment:
     """Random resize (relative to the stored size) and crop of training samples.
@@ -797,6 +816,9 @@ class Augment:
     gt_share: float = 0.5
     procedural_share: float = 0.0
     """Share of draws from procedural frames (:mod:`.procedural`) when there are other sources too."""
+    degrade: float = 0.0
+    """Probability that a ground-truth-only sample's input is degraded like phone footage
+    (:func:`degrade_like_footage`: blur, sensor noise, JPEG); its targets are unchanged."""
 
 
 class TrainingSet:
@@ -895,6 +917,8 @@ class TrainingSet:
             third = src.members[names[1]]
             adjusted = (prep(members[1]), third.alpha, third.beta * px_scale)
         inp = prep(image)
+        if kind == "gt" and aug.degrade > 0 and float(rng.random()) < aug.degrade:
+            inp = degrade_like_footage(inp, rng)
         gt_d = gt_e = sat = None
         if src.gt_disparity is not None:
             gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h), src.unsupervised_ids), size)

@@ -169,3 +169,28 @@ def test_generator_versions(tmp_path, pool, monkeypatch):
     write_dataset(tmp_path / "v2", 1, seed=1, pool=pool, sizes=TINY, version=2)
     with pytest.raises(InputError, match="--generator 2"):
         write_dataset(tmp_path / "v2", 2, seed=1, pool=pool, sizes=TINY, version=3)
+
+
+def test_degraded_inputs_keep_their_targets(tmp_path, pool):
+    """--degrade changes a ground-truth-only sample's input (8-bit values, blur/noise/JPEG) and
+    nothing else: the same draw without it has the same disparity target; rendered kinds never."""
+    from rvr_addon.estimate.data import degrade_like_footage
+
+    rng = np.random.default_rng(0)
+    img = np.clip(np.random.default_rng(1).random((32, 48, 3)), 0, 1).astype(np.float32)
+    out = degrade_like_footage(img, rng)
+    assert out.shape == img.shape and out.dtype == np.float32
+    assert np.array_equal(np.round(out * 255), out * 255) and 0.005 < float(np.abs(out - img).mean()) < 0.2
+    write_dataset(tmp_path / "proc", 2, seed=1, pool=pool, sizes=TINY)
+    sources = training_sources(tmp_path, SkipReport())
+    plain = TrainingSet(sources, Augment(crop=24)).make(sources[0], np.random.default_rng(5))
+    worn = TrainingSet(sources, Augment(crop=24, degrade=1.0)).make(sources[0], np.random.default_rng(5))
+    assert not np.array_equal(plain.image, worn.image)
+    assert np.array_equal(plain.gt_disparity, worn.gt_disparity)
+    from estimate_synth import make_clip
+
+    make_clip(tmp_path / "clips" / "clip0", seed=5, frames=1)
+    (src,) = training_sources(tmp_path / "clips", SkipReport())
+    a = TrainingSet([src], Augment(crop=24)).make(src, np.random.default_rng(5))
+    b = TrainingSet([src], Augment(crop=24, degrade=1.0)).make(src, np.random.default_rng(5))
+    assert a.kind != "gt" and np.array_equal(a.image, b.image)
