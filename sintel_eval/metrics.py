@@ -278,15 +278,23 @@ def flicker(out_prev: np.ndarray, out: np.ndarray, gt_prev: np.ndarray, gt: np.n
     return float(np.mean(np.abs((out - out_prev) - (gt - gt_prev))))
 
 
-def static_mask(prev_rgb: np.ndarray, rgb: np.ndarray, tol: float = 1.5, margin: int = 4) -> np.ndarray:
+def static_mask(prev_rgb: np.ndarray, rgb: np.ndarray, tol: float = 1.5, margin: int = 4,
+                flow: np.ndarray | None = None, max_motion_px: float = 0.5) -> np.ndarray:
     """(H, W) bool: pixels of a real clip that stay still between two consecutive frames, for
     flicker without ground truth. Both frames (H, W, 3) uint8 are turned grey and blurred
     (5x5 Gaussian); a pixel is static where they differ by less than ``tol`` code values and
     so does every pixel within ``margin`` px (motion edges, noise specks and compression
-    blocks that change are left out)."""
+    blocks that change are left out). ``flow`` (H, W, 2) px, the optical flow between the two
+    frames: a pixel must also move less than ``max_motion_px`` (in a pan, a plain wall looks
+    the same from frame to frame while the scene point behind the pixel changes)."""
     a = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(prev_rgb), cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 0)
     b = cv2.GaussianBlur(cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY).astype(np.float32), (5, 5), 0)
-    still = (np.abs(b - a) < tol).astype(np.uint8)
+    still = np.abs(b - a) < tol
+    if flow is not None:
+        if flow.shape != a.shape + (2,):
+            raise ValueError(f"static_mask: flow has shape {flow.shape}, the frames {a.shape}")
+        still &= np.hypot(flow[..., 0], flow[..., 1]) < max_motion_px
+    still = still.astype(np.uint8)
     if margin > 0:
         still = cv2.erode(still, np.ones((2 * margin + 1, 2 * margin + 1), np.uint8))
     return still.astype(bool)

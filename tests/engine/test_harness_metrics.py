@@ -184,6 +184,13 @@ def test_static_flicker_counts_change_where_the_input_stands_still():
     out1[10:20, 10:20] = 5.0  # change where the input moved is not flicker
     assert m.static_flicker(out0, out1, mask) == pytest.approx(0.25)
     assert math.isnan(m.static_flicker(out0, out1, np.zeros((40, 60), bool)))
+    # a pan over a plain wall: the pixels look the same, but the flow says the scene moved under them
+    flow = np.zeros((40, 60, 2), np.float32)
+    flow[:, 30:, 0] = 3.0
+    panned = m.static_mask(f0, f1, margin=2, flow=flow)
+    assert panned[30:, 22:26].all() and not panned[:, 28:].any()
+    with pytest.raises(ValueError, match="flow"):
+        m.static_mask(f0, f1, flow=flow[:20])
 
 
 def test_flicker_counts_only_change_beyond_the_ground_truth():
