@@ -179,11 +179,13 @@ def add_train_parser(sub) -> None:
 
     p = sub.add_parser("train", help="train the RGBD-HDR estimator (disparity + HDR from one frame)",
                        description="Train the RGBD-HDR estimator through the differentiable renderer (paper "
-                                   "section 4.1) on harness clips and/or your own aperture-bracketed photos. "
+                                   "section 4.1) on harness clips, procedural scenes and/or your own "
+                                   "aperture-bracketed photos. "
                                    "Resumable (--resume), with a progress bar, loss_log.csv and loss.png in the "
                                    "run folder; writes RUN_DIR/estimator.pt at the end.")
     p.add_argument("--data", action="append", type=Path, default=[], metavar="DIR",
-                   help="harness dataset: a folder of clips written by `python -m sintel_eval generate` (repeatable)")
+                   help="a folder of harness clips (`python -m sintel_eval generate`) and/or procedural datasets "
+                        "(`rvr procedural`) (repeatable)")
     p.add_argument("--user-photos", action="append", type=Path, default=[], metavar="DIR",
                    help="folder of bracketed photos: NAME_small.jpg + NAME_large.jpg [+ NAME_medium.jpg] "
                         "[+ NAME.json], or one sub-folder per shot (repeatable)")

@@ -32,6 +32,13 @@ the input (area when shrinking), from which the target exponent ``E_gt = max(ln(
 L_lin), 0) / 50`` and the saturated mask (brightest input channel >= 254/255) are computed on
 the resized, cropped, flipped input itself (:func:`exponent_target`). Photos have none.
 
+**Procedural datasets** (ours, ``rvr procedural``, :mod:`.procedural`; format
+``rvr-laaf-procedural/*``, the harness's file layout): every complete frame is a kind ``gt``
+source of origin ``procedural`` whose D is known only up to a positive scale and a shift
+(``disparity_invariant``: no lens); ``rvr train --data`` finds them next to harness clips and
+draws them with probability ``procedural_share``. ``degrade`` (``--degrade``) makes that share
+of ground-truth-only inputs look like phone footage (blur, noise, JPEG), targets unchanged.
+
 ``ignore_prints`` (``rvr train --ignore-prints``): the harness's photo prints (its billboards
 and poster panels: whole photographs of real scenes on flat boards) get no disparity
 supervision: their pixels of the ground truth are NaN (by the ``ID`` channel of
@@ -790,7 +797,6 @@ def degrade_like_footage(srgb: np.ndarray, rng: np.random.Generator) -> np.ndarr
     if ok:
         u8 = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
     return np.ascontiguousarray(u8, dtype=np.float32) / 255.0
-
 
 
 @dataclass(frozen=True)

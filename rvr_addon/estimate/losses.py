@@ -36,7 +36,9 @@ where a sample has ground truth (harness frames; never photos, whose terms drop 
   (the network's unit D_rel; resolution-free, ~1 for a typical error at initialisation). With
   ``disparity_invariant`` the prediction is first aligned to D_gt by the least-squares scale and
   shift of that sample (MiDaS, Ranftl et al. 2020): it then only teaches the shape of D, and the
-  renderer alone fixes its scale and offset;
+  renderer alone fixes its scale and offset. Procedural frames (``scale_free``: no lens, D known
+  up to a positive scale and a shift) are aligned instead by matching the median and the mean
+  absolute deviation (:func:`align_median_scale`), whose scale is always positive;
 * ``L_Dgrad``: multi-scale gradient matching of the residual ``R = D - D_gt`` (MiDaS): mean
   |dR/dx| + |dR/dy| at 4 scales (every 2^k-th pixel), same unit; it sharpens depth edges;
 * ``L_E``: mean ``50 |E - E_gt|`` (natural-log radiance gain) over the saturated input pixels
