@@ -1,22 +1,24 @@
-"""Procedural rooms and streets for the estimator's disparity supervision (ours, not the paper's).
+"""Procedural rooms, streets and close-ups for the estimator's disparity supervision (ours).
 
 The harness renders ~40 s of Cycles per ground-truth clip, so a training set of hundreds of
 scenes costs hours; and its photo prints (whole photographs on flat boards) taught the network
 that a photographed scene is flat. This module ray-casts, in numpy, a new random scene in about
-half a second (320x180, 2x2 samples a pixel, one core): a room (floor, walls, ceiling, a window) or a street (ground to the
-horizon, sky, building blocks), with boxes, tables, pillars, balls, people-like figures and a
-large object near the camera standing on the floor, all textured with crops of real photographs
-(:class:`TexturePool`: material-sized pieces, never a whole scene on a board) or procedural
-patterns, tiled on the 3D surfaces so that perspective, texture gradients, contact points and
-occlusions carry the depth as in real footage. Lambert shading from a sun or sky light and
-point lamps; emitters and windows far brighter than white (HDR, clipped in the 8-bit input).
+half a second (320x180, 2x2 samples a pixel, one core): a room (floor, walls, ceiling, a
+window, shelves) or a street (ground to the horizon, sky, building blocks), with boxes, tables,
+pillars, balls, people-like figures, clutter and often a large object near the camera, or
+(generator 3) a close-up of things on a floor or table in front of a backdrop, pot plants
+among them. Everything is textured with crops of real photographs (:class:`TexturePool`:
+material-sized pieces, never a whole scene on a board) or procedural patterns, tiled on the 3D
+surfaces so that perspective, texture gradients, contact points and occlusions carry the depth
+as in real footage. Lambert shading from a sun or sky light and point lamps, soft contact
+shadows; emitters and windows far brighter than white (HDR, clipped in the 8-bit input).
 
 Units: world in metres, y up, the floor at y = 0. A frame's ground truth is planar depth S (m);
 :func:`render_scene` returns D in px of blur radius at the frame's width,
 ``D = K (1/S_ref - 1/S)`` with ``K = k_rel * width / 100`` and S_ref the depth of a random
 object, i.e. DESIGN's units for a lens of blur constant ``k_rel`` per cent of the width x m.
 The absolute K and S_ref of such a scene mean nothing (there is no lens): the trainer supervises
-these frames up to a positive scale and a shift (:func:`.losses.fit_scale_shift`).
+these frames up to a positive scale and a shift (:func:`.losses.align_median_scale`).
 
 Radiance is linear, exposed so the scene's median is mid-grey; the input is its sRGB 8-bit
 rendering (clipped), 2x2 supersampled (the disparity is the sample nearest each pixel centre).
