@@ -280,10 +280,12 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def add_procedural_parser(sub) -> None:
-    p = sub.add_parser("procedural", help="write procedural training scenes for the estimator (rooms, streets)",
-                       description="Ray-cast random rooms and streets textured with pieces of real photographs "
+    p = sub.add_parser("procedural", help="write procedural training scenes for the estimator (rooms, streets, "
+                                          "close-ups)",
+                       description="Ray-cast random rooms, streets and close-ups textured with pieces of real "
+                                   "photographs "
                                    "and write them as a training dataset for `rvr train --data DIR`: input PNG, "
-                                   "ground-truth disparity and HDR per frame (about 1 s a frame on one core). "
+                                   "ground-truth disparity and HDR per frame (under 1 s a frame on one core). "
                                    "Resumable: frames already written are kept; a larger --frames extends it.")
     p.add_argument("-o", "--output", required=True, type=Path, metavar="DIR", help="dataset folder")
     p.add_argument("--frames", type=int, default=2000, help="number of frames (default 2000)")

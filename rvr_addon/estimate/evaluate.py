@@ -333,6 +333,11 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
         raise InputError("nothing to evaluate: pass --data HELDOUT_DATASET (harness clips), --motorcycle and/or "
                          "--real IMAGE DISPARITY")
     pairs = [real_pair(Path(i), Path(d)) for i, d in s.real]  # bad files fail before any work
+    seen: dict[str, int] = {}
+    for k, (name, rgb, gt) in enumerate(pairs):  # two pictures of the same stem: name_2, name_3, ...
+        seen[name] = seen.get(name, 0) + 1
+        if seen[name] > 1:
+            pairs[k] = (f"{name}_{seen[name]}", rgb, gt)
     report = Path(s.output)
     _check_target(report, s.force)
     model = load_estimator(s.weights if s.weights is not None else default_weights())

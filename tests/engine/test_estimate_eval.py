@@ -193,6 +193,9 @@ def test_real_picture_with_ground_truth(tiny_weights, tmp_path, capsys):
     assert summary["estimate.real.view_L.valid_fraction"] == pytest.approx(1 - 35 / (40 * 56))
     assert (tmp_path / "r" / "compare_real_view_L.png").is_file()
     assert "Real picture `view_L`" in (tmp_path / "r" / "README.md").read_text()
+    twice = evaluate(EvalSettings(output=tmp_path / "r3", weights=tiny_weights,
+                                  real=[(tmp_path / "view L.png", tmp_path / "gt.npy")] * 2))
+    assert twice["estimate.real.view_L_2.corr"] == pytest.approx(twice["estimate.real.view_L.corr"])
     np.save(tmp_path / "small.npy", disp[:20])
     assert main(["eval-estimator", "--weights", str(tiny_weights), "--real", str(tmp_path / "view L.png"),
                  str(tmp_path / "small.npy"), "-o", str(tmp_path / "r2"), "-q"]) == 2
