@@ -37,7 +37,7 @@ _libc: list = []
 
 @contextlib.contextmanager
 def deferred_interrupt() -> Iterator[None]:
-    """Hold back Ctrl-C (SIGINT) until the block is done, then raise KeyboardInterrupt.
+    """Hold back Ctrl-C (SIGINT) and SIGTERM until the block is done, then raise KeyboardInterrupt.
 
     Wraps the optimizer update and the checkpoint write, so an interrupt never leaves some
     parameters updated and others not. Outside the main thread (where signal handlers cannot
@@ -47,13 +47,34 @@ def deferred_interrupt() -> Iterator[None]:
         yield
         return
     caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    previous = {sig: signal.signal(sig, lambda signum, frame: caught.append(signum))
+                for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if caught:
         raise KeyboardInterrupt
+
+
+def _terminate_as_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM (a cluster's scheduler, ``kill``) stops like Ctrl-C: it raises
+    KeyboardInterrupt, so the run saves its checkpoint. (A job started in the background by a
+    non-interactive shell ignores SIGINT; SIGTERM still reaches it.) Main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def current_rss_mb() -> float:
@@ -350,18 +371,20 @@ class TrainingRun:
             self._log_file = None
 
     def run(self, progress: bool = True) -> None:
-        """Run to the end with a tqdm bar; on Ctrl-C save a checkpoint, then re-raise."""
+        """Run to the end with a tqdm bar; on Ctrl-C or SIGTERM save a checkpoint, then raise
+        KeyboardInterrupt."""
         from tqdm import tqdm
 
         s = self.settings
         bar = tqdm(total=s.iterations, initial=self.iteration, unit="it", desc=self.bar_desc, disable=not progress)
         try:
-            while self.step():
-                bar.update(1)
-                if self.iteration % 10 == 0:
-                    bar.set_postfix(loss=f"{self.last.get('total', 0):.4f}", refresh=False)
-            if not self._cancelled and not self._finished:  # resumed at (or past) its count: export it now
-                self.finish()
+            with terminate_as_interrupt():
+                while self.step():
+                    bar.update(1)
+                    if self.iteration % 10 == 0:
+                        bar.set_postfix(loss=f"{self.last.get('total', 0):.4f}", refresh=False)
+                if not self._cancelled and not self._finished:  # resumed at (or past) its count: export it now
+                    self.finish()
             bar.update(max(0, s.iterations - bar.n))
         except KeyboardInterrupt:
             self.cancel()

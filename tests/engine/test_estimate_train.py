@@ -247,3 +247,28 @@ def test_resume_at_its_count_exports_the_weights(tmp_path, tiny_dataset):
     assert main(args + ["--resume"]) == 0
     assert json.loads((run / "estimator.json").read_text())["iterations"] == 4
     assert load_estimator(run / "estimator.pt").header["iterations"] == 4
+
+
+def test_sigterm_saves_a_checkpoint_like_ctrl_c(tmp_path, tiny_dataset, monkeypatch):
+    """A scheduler's SIGTERM (or `kill`) mid-run: the step being drawn is dropped (an update in
+    progress would complete first), the checkpoint is saved, and --resume continues from it."""
+    import os
+    import signal
+
+    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, checkpoint_every=100))
+    real_draw = trainer.data.draw
+    calls = {"n": 0}
+
+    def draw(rng):
+        calls["n"] += 1
+        if calls["n"] == 6:
+            os.kill(os.getpid(), signal.SIGTERM)  # arrives while step 6 draws its sample
+        return real_draw(rng)
+
+    monkeypatch.setattr(trainer.data, "draw", draw)
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.run(progress=False)
+    assert signal.getsignal(signal.SIGTERM) is before
+    resumed = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, resume=True))
+    assert resumed.iteration == 5
