@@ -77,18 +77,27 @@ def test_resume_continues_exactly(tmp_path, tiny_dataset):
     assert [r["sample"] + r["kind"] for r in rows] == [r["sample"] + r["kind"] for r in straight_rows]
 
 
-def test_ctrl_c_saves_a_checkpoint_and_drops_unsaved_log_rows(tmp_path, tiny_dataset, monkeypatch):
-    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, checkpoint_every=100))
+def interrupt_at_draw(trainer: Trainer, n: int, interrupt, monkeypatch) -> None:
+    """Call ``interrupt()`` when the trainer draws its n-th sample (step n, batch 1)."""
     real_draw = trainer.data.draw
     calls = {"n": 0}
 
     def draw(rng):
         calls["n"] += 1
-        if calls["n"] == 8:
-            raise KeyboardInterrupt
+        if calls["n"] == n:
+            interrupt()
         return real_draw(rng)
 
     monkeypatch.setattr(trainer.data, "draw", draw)
+
+
+def test_ctrl_c_saves_a_checkpoint_and_drops_unsaved_log_rows(tmp_path, tiny_dataset, monkeypatch):
+    trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, checkpoint_every=100))
+
+    def ctrl_c():
+        raise KeyboardInterrupt
+
+    interrupt_at_draw(trainer, 8, ctrl_c, monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         trainer.run(progress=False)
     resumed = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=9, resume=True))
@@ -256,16 +265,8 @@ def test_sigterm_saves_a_checkpoint_like_ctrl_c(tmp_path, tiny_dataset, monkeypa
     import signal
 
     trainer = Trainer(settings(tmp_path / "run", tiny_dataset, iterations=50, checkpoint_every=100))
-    real_draw = trainer.data.draw
-    calls = {"n": 0}
-
-    def draw(rng):
-        calls["n"] += 1
-        if calls["n"] == 6:
-            os.kill(os.getpid(), signal.SIGTERM)  # arrives while step 6 draws its sample
-        return real_draw(rng)
-
-    monkeypatch.setattr(trainer.data, "draw", draw)
+    # arrives while step 6 draws its sample
+    interrupt_at_draw(trainer, 6, lambda: os.kill(os.getpid(), signal.SIGTERM), monkeypatch)
     before = signal.getsignal(signal.SIGTERM)
     with pytest.raises(KeyboardInterrupt):
         trainer.run(progress=False)
