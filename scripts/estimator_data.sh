@@ -12,10 +12,14 @@
 # DATA_DIR/deep   ground-truth-only clips (--no-dof: the deep pass with exact disparity and HDR,
 #                 no DOF passes; `rvr train` uses them for its supervised terms, kind "gt"):
 #                 photo style, 6 frames each, seeds 4001.. (even seeds tilted down). ~40 s a clip.
-# DATA_DIR/procedural  procedural rooms and streets (`rvr procedural`, no Cycles: ~0.7 s a frame
-#                 on one core), textured with pieces of the photographs under ../shared/data's
-#                 Sintel frames and the harness's texture cache (frames of the real clips, written
-#                 by the `generate` runs above) plus scikit-image's samples; N_PROC frames, seed 2.
+# DATA_DIR/procedural/proc2, proc3  procedural scenes (`rvr procedural`, no Cycles: ~0.7 s a frame
+#                 on one core) as the shipped weights used them: 2,105 frames of generator 2
+#                 (rooms and streets, seed 2) and 1,294 of generator 3 (a third close-ups, seed 4),
+#                 textured with pieces of ../shared/data's Sintel frames, the harness's texture
+#                 cache (frames of the real clips, written by the `generate` runs above) and
+#                 scikit-image's samples; proc3 also with $OCV_PHOTOS when it is set: a folder of
+#                 the 21 photographs of OpenCV's samples/data listed in MODEL.md (from
+#                 `pip download --no-deps --no-binary :all: opencv-python==4.11.0.86`).
 #
 # Then, e.g. (MODEL.md has the exact commands of the shipped weights):
 #   rvr train --data DATA_DIR/procedural --data DATA_DIR/deep --data DATA_DIR/train -o RUN \
@@ -27,7 +31,6 @@ PY=${PY:-.venv/bin/python}
 DATA=${1:-out/estimator_data}
 N_DEEP=${2:-600}
 N_TRAIN=${N_TRAIN:-40}
-N_PROC=${N_PROC:-8000}
 
 gen() {  # gen OUT ARGS...: one clip, skipped when complete
   local out=$1; shift
@@ -54,4 +57,8 @@ done
 TEXTURE_CACHE=${RVR_TEXTURE_CACHE:-$HOME/.cache/rvr-laaf/textures}
 textures=(--textures ../shared/data/sintel_frames)
 [[ -d "$TEXTURE_CACHE/frames" ]] && textures+=(--textures "$TEXTURE_CACHE/frames")
-nice -n 10 "$PY" -m rvr_addon procedural -o "$DATA/procedural" --frames "$N_PROC" --seed 2 "${textures[@]}"
+nice -n 10 "$PY" -m rvr_addon procedural -o "$DATA/procedural/proc2" --frames 2105 --seed 2 --generator 2 \
+  "${textures[@]}"
+[[ -n "${OCV_PHOTOS:-}" ]] && textures+=(--textures "$OCV_PHOTOS")
+nice -n 10 "$PY" -m rvr_addon procedural -o "$DATA/procedural/proc3" --frames 1294 --seed 4 --generator 3 \
+  "${textures[@]}"
