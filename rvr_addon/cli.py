@@ -296,6 +296,8 @@ def add_procedural_parser(sub) -> None:
     p.add_argument("--textures", action="append", type=Path, default=[], metavar="DIR",
                    help="folder of photographs (png/jpg, recursively) to cut material textures from (repeatable); "
                         "scikit-image's sample photographs are always added (never the Motorcycle pair)")
+    p.add_argument("--workers", type=int, default=1, metavar="N",
+                   help="render in N processes (one per core; the frames are the same) (default 1)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_procedural)
 
@@ -303,14 +305,14 @@ def add_procedural_parser(sub) -> None:
 def cmd_procedural(args: argparse.Namespace) -> int:
     from .estimate.procedural import GENERATOR_VERSION, TexturePool, texture_paths, write_dataset
 
-    if args.frames < 1:
-        raise RvrError(f"--frames must be at least 1, got {args.frames}")
+    if args.frames < 1 or args.workers < 1:
+        raise RvrError(f"--frames and --workers must be at least 1, got {args.frames} and {args.workers}")
     pool = TexturePool.from_paths(texture_paths(args.textures))
     if not pool.images:
         print("rvr procedural: no photographs found (install scikit-image or pass --textures DIR); "
               "using procedural textures only", file=sys.stderr)
     made = write_dataset(args.output, args.frames, args.seed, pool, progress=not args.quiet,
-                         version=args.generator or GENERATOR_VERSION)
+                         version=args.generator or GENERATOR_VERSION, workers=args.workers)
     print(f"wrote {made} frames to {args.output} ({args.frames} in all, {len(pool.images)} photographs)")
     return 0
 

@@ -853,11 +853,13 @@ def write_frame(folder: Path, index: int, seed: int, pool: TexturePool,
 
 
 def write_dataset(folder: str | Path, frames: int, seed: int, pool: TexturePool, progress: bool = False,
-                  sizes: tuple[tuple[int, int], ...] = FRAME_SIZES, version: int = GENERATOR_VERSION) -> int:
+                  sizes: tuple[tuple[int, int], ...] = FRAME_SIZES, version: int = GENERATOR_VERSION,
+                  workers: int = 1) -> int:
     """Write (or complete) a procedural dataset of ``frames`` frames in ``folder``, each of one of
     ``sizes`` (w, h); frames whose done marker exists are kept. Returns the number of frames
-    rendered now. A folder written with another seed or generator version is refused
-    (InputError naming it), as is a version this module cannot draw."""
+    rendered now, in ``workers`` processes (the frames are the same whatever their number). A
+    folder written with another seed or generator version is refused (InputError naming it), as
+    is a version this module cannot draw."""
     if version not in GENERATOR_VERSIONS:
         raise InputError(f"generator version {version} is not available; choose one of {GENERATOR_VERSIONS}")
     from tqdm import tqdm
@@ -876,6 +878,43 @@ def write_dataset(folder: str | Path, frames: int, seed: int, pool: TexturePool,
     folder.mkdir(parents=True, exist_ok=True)
     manifest.write_text(json.dumps(record, indent=1))
     todo = [i for i in range(1, frames + 1) if not (folder / "done" / f"frame_{i:05d}.json").is_file()]
+    if workers > 1 and len(todo) > 1:
+        _write_in_parallel(folder, todo, seed, pool, sizes, version, workers, progress)
+        return len(todo)
     for i in tqdm(todo, desc="procedural frames", unit="frame", disable=not progress):
         write_frame(folder, i, seed, pool, sizes, version)
     return len(todo)
+
+
+def _write_frames(folder: Path, indices: list[int], seed: int, pool: TexturePool,
+                  sizes: tuple[tuple[int, int], ...], version: int) -> None:
+    """One worker's share of :func:`write_dataset` (frames are independent: any order, any split)."""
+    for i in indices:
+        write_frame(folder, i, seed, pool, sizes, version)
+
+
+def _write_in_parallel(folder: Path, todo: list[int], seed: int, pool: TexturePool,
+                       sizes: tuple[tuple[int, int], ...], version: int, workers: int, progress: bool) -> None:
+    """Render ``todo`` in ``workers`` processes (every workers-th frame each); the bar counts done
+    markers. A worker that fails raises InputError after the others finish; written frames stay."""
+    import multiprocessing as mp
+    import time
+
+    from tqdm import tqdm
+
+    ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+    procs = [ctx.Process(target=_write_frames, args=(folder, todo[k::workers], seed, pool, sizes, version),
+                         daemon=True) for k in range(min(workers, len(todo)))]
+    for proc in procs:
+        proc.start()
+    done_dir = folder / "done"
+    with tqdm(total=len(todo), desc="procedural frames", unit="frame", disable=not progress) as bar:
+        while any(proc.is_alive() for proc in procs):
+            time.sleep(0.5)
+            bar.update(sum((done_dir / f"frame_{i:05d}.json").is_file() for i in todo) - bar.n)
+        bar.update(sum((done_dir / f"frame_{i:05d}.json").is_file() for i in todo) - bar.n)
+    failed = [proc.exitcode for proc in procs if proc.exitcode != 0]
+    if failed:
+        raise InputError(f"{len(failed)} of {len(procs)} `rvr procedural` workers failed (exit codes {failed}; see "
+                         f"the messages above); the frames written in {folder} are kept: run the command again "
+                         "to finish")

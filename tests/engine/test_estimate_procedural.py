@@ -194,3 +194,31 @@ def test_degraded_inputs_keep_their_targets(tmp_path, pool):
     a = TrainingSet([src], Augment(crop=24)).make(src, np.random.default_rng(5))
     b = TrainingSet([src], Augment(crop=24, degrade=1.0)).make(src, np.random.default_rng(5))
     assert a.kind != "gt" and np.array_equal(a.image, b.image)
+
+
+def test_parallel_workers_write_the_same_frames(tmp_path, pool, capsys):
+    write_dataset(tmp_path / "one", 4, seed=6, pool=pool, sizes=TINY)
+    assert write_dataset(tmp_path / "two", 4, seed=6, pool=pool, sizes=TINY, workers=2) == 4
+    for i in range(1, 5):
+        for rel in (f"input/frame_{i:05d}.png", f"gt/disparity/frame_{i:05d}.exr", f"done/frame_{i:05d}.json"):
+            assert (tmp_path / "one" / rel).read_bytes() == (tmp_path / "two" / rel).read_bytes(), rel
+    assert write_dataset(tmp_path / "two", 4, seed=6, pool=pool, sizes=TINY, workers=2) == 0
+    assert main(["procedural", "-o", str(tmp_path / "x"), "--frames", "2", "--workers", "0"]) == 2
+    assert "--workers" in capsys.readouterr().err
+
+
+def test_a_failing_worker_is_reported_and_written_frames_stay(tmp_path, pool, monkeypatch):
+    from rvr_addon.estimate import procedural
+
+    real = procedural.write_frame
+
+    def flaky(folder, index, *a):
+        if index == 2:
+            raise OSError("disk full")
+        real(folder, index, *a)
+
+    monkeypatch.setattr(procedural, "write_frame", flaky)  # the forked workers inherit it
+    with pytest.raises(InputError, match="1 of 2 `rvr procedural` workers failed.*run the command again"):
+        write_dataset(tmp_path / "p", 4, seed=6, pool=pool, sizes=TINY, workers=2)
+    done = sorted(p.name for p in (tmp_path / "p" / "done").glob("*.json"))
+    assert done == ["frame_00001.json", "frame_00003.json"]  # worker 2 stopped at frame 2, before 4
