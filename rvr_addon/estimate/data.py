@@ -339,19 +339,25 @@ def find_harness_clips(root: str | Path) -> list[Path]:
     if not root.is_dir():
         raise InputError(f"Training data folder '{root}' does not exist; pass a folder written by "
                          "`python -m sintel_eval generate -o DIR` (or a folder of such folders).")
-    clips = []
+    return _find_datasets(root, HARNESS_FORMAT)
+
+
+def _find_datasets(root: Path, prefix: str) -> list[Path]:
+    """Folders at or under ``root`` whose manifest.json has a ``format`` starting with ``prefix``
+    (naturally sorted); a found folder is not descended into, hidden folders are skipped."""
+    found = []
     for dirpath, dirnames, filenames in os.walk(root):
         if "manifest.json" in filenames:
             try:
                 fmt = json.loads((Path(dirpath) / "manifest.json").read_text()).get("format", "")
             except (OSError, ValueError, AttributeError):
                 fmt = ""
-            if isinstance(fmt, str) and fmt.startswith(HARNESS_FORMAT):
-                clips.append(Path(dirpath))
+            if isinstance(fmt, str) and fmt.startswith(prefix):
+                found.append(Path(dirpath))
                 dirnames[:] = []
                 continue
         dirnames[:] = [d for d in dirnames if not d.startswith(".")]
-    return sorted(clips, key=natural_key)
+    return sorted(found, key=natural_key)
 
 
 def _marker_sizes(marker: dict) -> dict[str, int | None]:
@@ -466,19 +472,11 @@ def _ground_truth_sources(clip: Path, manifest: dict, config_hash: str | None, w
 
 def find_procedural_sets(root: str | Path) -> list[Path]:
     """Every folder at or under ``root`` holding a manifest.json of format ``rvr-laaf-procedural/*``
-    (written by ``rvr procedural``)."""
+    (written by ``rvr procedural``); like :func:`find_harness_clips`, a found folder is not
+    descended into and hidden folders are skipped."""
     from .procedural import PROCEDURAL_FORMAT
 
-    prefix = PROCEDURAL_FORMAT.split("/")[0] + "/"
-    found = []
-    for manifest in Path(root).rglob("manifest.json"):
-        try:
-            fmt = json.loads(manifest.read_text()).get("format", "")
-        except (OSError, ValueError, AttributeError):
-            continue
-        if isinstance(fmt, str) and fmt.startswith(prefix):
-            found.append(manifest.parent)
-    return sorted(found, key=natural_key)
+    return _find_datasets(Path(root), PROCEDURAL_FORMAT.split("/")[0] + "/")
 
 
 def procedural_sources(folder: Path, report: SkipReport) -> list[SampleSource]:
