@@ -209,6 +209,9 @@ def add_train_parser(sub) -> None:
                    help="share of ground-truth-only samples (harness --no-dof clips, procedural frames) whose input "
                         "is degraded like phone footage (blur, sensor noise, JPEG) while the targets stay exact "
                         "(default 0)")
+    p.add_argument("--expose", type=float, default=0.0, metavar="P",
+                   help="share of ground-truth-only samples given another white balance and a brighter exposure "
+                        "(0-1 stop; the input is clipped again, the HDR target follows) (default 0)")
     p.add_argument("--inference-max-pixels", type=int, metavar="P",
                    help="record in the weights that inference runs the network's trunk on frames shrunk to at "
                         "most P pixels (the scale it was trained at; D is sliced and E gated at full size); "
@@ -267,7 +270,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         lr=args.lr, batch=args.batch, crop=args.crop, scale_range=(args.min_scale, 1.0), vgg19=args.vgg19,
         whole_frame=args.whole_frame, weights=weights, checkpoint_every=args.checkpoint_every, seed=args.seed,
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
-        procedural_share=args.procedural_share, degrade=args.degrade,
+        procedural_share=args.procedural_share, degrade=args.degrade, expose=args.expose,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
         model=EstimatorConfig(row_prior=args.row_prior))
     trainer = Trainer(settings, progress=not args.quiet)

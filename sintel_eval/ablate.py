@@ -149,7 +149,8 @@ def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path,
             raise RuntimeError(f"variant {variant.name} returned an invalid frame {gt.frame} of "
                                f"{reader.name}/{track}: shape {out.shape}, finite={bool(np.all(np.isfinite(out)))}")
         ref = out if keep is not None else (reference.get(gt.frame) if reference else None)
-        scorer.add(gt.frame, out, gt.dof_linear, inputs.disparity, gt.disparity, gt.focus, gt.aperture, ref)
+        scorer.add(gt.frame, out, gt.dof_linear, inputs.disparity, gt.disparity, gt.focus, gt.aperture, ref,
+                   input_srgb=gt.input_srgb)
         if keep is not None:
             keep[gt.frame] = out
         png = outputs / f"frame_{gt.frame:05d}.png"

@@ -300,6 +300,39 @@ def static_mask(prev_rgb: np.ndarray, rgb: np.ndarray, tol: float = 1.5, margin:
     return still.astype(bool)
 
 
+def evaluation_flow(prev_rgb: np.ndarray, rgb: np.ndarray, delta_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Motion between two consecutive (H, W, 3) uint8 input frames, for motion-compensated
+    flicker: ``(flow, valid)``, the flow (H, W, 2) px from frame t (``rgb``) to frame t-1 (the
+    point at pixel p of t is at p + flow(p) in t-1) and the (H, W) bool pixels where it is
+    trustworthy: forward-backward consistent within ``delta_px`` + 5 % of its length and
+    landing inside the frame. Farneback's flow at full resolution, deliberately *not* the DIS
+    flow the temporal filter itself follows, so the filter is not graded by its own flow."""
+    from rvr_addon.temporal.flow import consistent
+
+    a = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2GRAY)
+    b = cv2.cvtColor(np.ascontiguousarray(prev_rgb), cv2.COLOR_RGB2GRAY)
+    args = (None, 0.5, 4, 15, 3, 5, 1.2, 0)
+    back = cv2.calcOpticalFlowFarneback(a, b, *args)
+    fwd = cv2.calcOpticalFlowFarneback(b, a, *args)
+    return back, consistent(back, fwd, delta_px)
+
+
+def warped_flicker(err_prev: np.ndarray, err: np.ndarray, flow: np.ndarray, valid: np.ndarray) -> float:
+    """Motion-compensated flicker of an error image: mean over the ``valid`` pixels (and the
+    channels) of ``|err_t - warp(err_{t-1})|``, where ``warp`` brings frame t-1 onto t along
+    ``flow`` (:func:`evaluation_flow`, bilinear). ``err`` = output - reference: an error that
+    moves with the scene (a consistently wrong blur on a panning wall) scores ~0, an error that
+    changes along the motion scores its change. Units of the arrays. NaN on an empty mask."""
+    from rvr_addon.temporal.flow import warp
+
+    err_prev, err = _check_pair(err_prev, err, "warped_flicker")
+    valid = _check_mask(valid, err.shape, "warped_flicker")
+    if not valid.any():
+        return float("nan")
+    moved = warp(np.ascontiguousarray(err_prev, dtype=np.float32), np.ascontiguousarray(flow, dtype=np.float32))
+    return float(np.mean(np.abs(err - moved)[valid]))
+
+
 def static_flicker(out_prev: np.ndarray, out: np.ndarray, mask: np.ndarray) -> float:
     """Mean ``|out_t - out_{t-1}|`` over the pixels (and channels) of ``mask`` (:func:`static_mask`):
     on pixels whose input does not change, every change of the output is flicker. Units of the

@@ -45,17 +45,19 @@ HEADLINE_METRICS: tuple[str, ...] = ("psnr_srgb_db", "edge_band_psnr_srgb_db", "
 UNITS = {
     "psnr_srgb_db": "dB", "psnr_linear_db": "dB", "ssim_srgb": "", "ssim_linear": "",
     "edge_band_psnr_srgb_db": "dB", "edge_band_psnr_linear_db": "dB", "splotchiness_px": "px",
-    "flicker": "sRGB", "flicker_exact": "sRGB", "bokeh_recall": "",
+    "flicker": "sRGB", "flicker_exact": "sRGB", "flicker_exact_warped": "sRGB", "bokeh_recall": "",
 }
 TITLES = {
     "psnr_srgb_db": "PSNR sRGB", "psnr_linear_db": "PSNR linear", "ssim_srgb": "SSIM sRGB",
     "ssim_linear": "SSIM linear", "edge_band_psnr_srgb_db": "edge PSNR sRGB",
     "edge_band_psnr_linear_db": "edge PSNR linear", "splotchiness_px": "splotchiness",
-    "flicker": "flicker", "flicker_exact": "flicker vs exact", "bokeh_recall": "bokeh recall",
+    "flicker": "flicker", "flicker_exact": "flicker vs exact",
+    "flicker_exact_warped": "warped flicker vs exact", "bokeh_recall": "bokeh recall",
 }
 FORMATS = {"psnr_srgb_db": ".2f", "psnr_linear_db": ".2f", "ssim_srgb": ".4f", "ssim_linear": ".4f",
            "edge_band_psnr_srgb_db": ".2f", "edge_band_psnr_linear_db": ".2f", "splotchiness_px": ".3f",
-           "flicker": ".4f", "flicker_exact": ".4f", "bokeh_recall": ".3f"}
+           "flicker": ".4f", "flicker_exact": ".4f", "flicker_exact_warped": ".4f",
+           "bokeh_recall": ".3f"}
 
 DEFINITIONS = """\
 | metric | unit | what it measures (better) |
@@ -67,6 +69,7 @@ DEFINITIONS = """\
 | splotchiness | px | standard deviation, within each frame, of the blur-size error a\\|D_used - f\\| - a\\|D_gt - f\\| inside flat ground-truth regions (blur-radius gradient < {grad} px/px, eroded {erode} px); 0 for every variant rendered from ground-truth disparity (lower) |
 | flicker | sRGB | mean over consecutive frames of \\|(out_t - out_t-1) - (gt_t - gt_t-1)\\| in sRGB [0, 1]: frame-to-frame change beyond the ground truth's (lower) |
 | flicker vs exact | sRGB | the same with, instead of Cycles' image, our renderer's output from the exact (ground-truth) disparity and HDR (the `ours_gt` row, which scores 0): the flicker the variant's inputs add, the part a temporal filter of D and E can remove; empty when `ours_gt` was not run (lower) |
+| warped flicker vs exact | sRGB | motion-compensated: mean of \\|e_t - warp(e_t-1)\\| with e = out - (the `ours_gt` output), e_t-1 warped onto frame t along the input's optical flow (Farneback, full resolution; not the filter's DIS flow), over forward-backward-consistent pixels. "flicker vs exact" also counts an error that only moves with the scene (a wrong but steady blur on a panning wall changes every pixel); this counts only errors that change along the motion, the flicker proper (lower) |
 | bokeh recall | - | over the ground truth's defocused highlights (linear radiance > {hl} and blur radius >= {defocus} px), sum min(ours, gt) / sum gt: the share of the bokeh energy found (higher) |
 
 Figures of a clip are means over its focus tracks; the overall figures are means over every clip and track.

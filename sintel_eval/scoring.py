@@ -15,6 +15,12 @@ images, for flicker) and pools the per-frame pieces of :mod:`.metrics` into clip
   (ground-truth) disparity and HDR instead of Cycles' image, when the caller gives one: the
   flicker the inputs cause (what a temporal filter of D and E can remove), without the
   renderer-vs-Cycles differences that every variant shares;
+- ``flicker_exact_warped``: motion-compensated flicker of the error against that reference:
+  ``|e_t - warp(e_{t-1})|`` with ``e = out - ref`` (sRGB), warped along the input's optical
+  flow (:func:`.metrics.evaluation_flow`) on its consistent pixels. ``flicker_exact`` also
+  counts an error that merely moves with the scene (a consistently wrong blur on a panning
+  wall changes every pixel's value); this one counts only errors that change along the motion,
+  i.e. flicker. Needs the input frames (``input_srgb``);
 - ``bokeh_recall``: found / total highlight energy pooled over frames (0..1).
 
 A figure with nothing to measure (no edge in the clip, no highlight, a single frame for
@@ -31,14 +37,15 @@ from . import metrics as m
 
 METRICS: tuple[str, ...] = (
     "psnr_srgb_db", "psnr_linear_db", "ssim_srgb", "ssim_linear", "edge_band_psnr_srgb_db",
-    "edge_band_psnr_linear_db", "splotchiness_px", "flicker", "flicker_exact", "bokeh_recall",
+    "edge_band_psnr_linear_db", "splotchiness_px", "flicker", "flicker_exact", "flicker_exact_warped",
+    "bokeh_recall",
 )
 """Names of the figures of a run, in report order."""
 
 HIGHER_IS_BETTER: dict[str, bool] = {
     "psnr_srgb_db": True, "psnr_linear_db": True, "ssim_srgb": True, "ssim_linear": True,
     "edge_band_psnr_srgb_db": True, "edge_band_psnr_linear_db": True, "splotchiness_px": False,
-    "flicker": False, "flicker_exact": False, "bokeh_recall": True,
+    "flicker": False, "flicker_exact": False, "flicker_exact_warped": False, "bokeh_recall": True,
 }
 
 
@@ -74,6 +81,7 @@ class FrameScore:
     edge_band_psnr_srgb_db: float
     flicker: float
     flicker_exact: float
+    flicker_exact_warped: float
     bokeh_recall: float
 
 
@@ -94,6 +102,8 @@ class RunScorer:
     _bokeh: list[float] = field(default_factory=lambda: [0.0, 0.0])
     _flicker: list[float] = field(default_factory=list)
     _flicker_exact: list[float] = field(default_factory=list)
+    _flicker_warped: list[float] = field(default_factory=list)
+    _prev_input: np.ndarray | None = None
     _prev: tuple[np.ndarray, np.ndarray] | None = None
     _prev_ref: np.ndarray | None = None
     _band_px: int = 0
@@ -101,12 +111,14 @@ class RunScorer:
 
     def add(self, frame: int, out_linear: np.ndarray, gt_linear: np.ndarray, disparity_used: np.ndarray,
             disparity_gt: np.ndarray, focus: float, aperture: float,
-            ref_linear: np.ndarray | None = None) -> FrameScore:
+            ref_linear: np.ndarray | None = None, input_srgb: np.ndarray | None = None) -> FrameScore:
         """Score one frame.
 
         out_linear / gt_linear: (H, W, 3) linear radiance of the variant and of the ground truth.
         ref_linear: optional (H, W, 3) render of the same frame from the exact inputs (for
         ``flicker_exact``; give it for every frame of the run or for none).
+        input_srgb: optional (H, W, 3) uint8 deep-DOF input frame, for the motion of
+        ``flicker_exact_warped`` (with ``ref_linear``).
         disparity_used / disparity_gt: (H, W) DESIGN units, what the variant rendered with and
         the truth. focus, aperture: the frame's focus disparity and aperture scale.
         """
@@ -143,8 +155,16 @@ class RunScorer:
         if ref_s is not None and self._prev is not None and self._prev_ref is not None:
             fl_exact = m.flicker(self._prev[0], out_s, self._prev_ref, ref_s)
             self._flicker_exact.append(fl_exact)
+        fl_warped = float("nan")
+        if not math.isnan(fl_exact) and input_srgb is not None and self._prev_input is not None \
+                and input_srgb.shape == self._prev_input.shape:
+            motion, valid = m.evaluation_flow(self._prev_input, input_srgb)
+            fl_warped = m.warped_flicker(self._prev[0] - self._prev_ref, out_s - ref_s, motion, valid)
+            if not math.isnan(fl_warped):
+                self._flicker_warped.append(fl_warped)
         self._prev = (out_s, gt_s)
         self._prev_ref = ref_s
+        self._prev_input = input_srgb
 
         band_sse, band_n = pieces["band_srgb"]
         score = FrameScore(
@@ -153,7 +173,7 @@ class RunScorer:
             psnr_linear_db=m.psnr_from_mse(_ratio(*pieces["lin"])),
             ssim_srgb=ssim_s, ssim_linear=ssim_l,
             edge_band_psnr_srgb_db=m.psnr_from_mse(_ratio(band_sse, band_n)),
-            flicker=fl, flicker_exact=fl_exact, bokeh_recall=_ratio(found, total),
+            flicker=fl, flicker_exact=fl_exact, flicker_exact_warped=fl_warped, bokeh_recall=_ratio(found, total),
         )
         self.frames.append(score)
         return score
@@ -174,6 +194,7 @@ class RunScorer:
             "splotchiness_px": math.sqrt(self._splotch[0] / self._splotch[1]) if self._splotch[1] else float("nan"),
             "flicker": float(np.mean(self._flicker)) if self._flicker else float("nan"),
             "flicker_exact": float(np.mean(self._flicker_exact)) if self._flicker_exact else float("nan"),
+            "flicker_exact_warped": float(np.mean(self._flicker_warped)) if self._flicker_warped else float("nan"),
             "bokeh_recall": _ratio(self._bokeh[0], self._bokeh[1]),
             "frames": float(len(self.frames)),
             "edge_band_fraction": _ratio(self._band_px, self._px),

@@ -797,6 +797,23 @@ def degrade_like_footage(srgb: np.ndarray, rng: np.random.Generator) -> np.ndarr
     return np.ascontiguousarray(u8, dtype=np.float32) / 255.0
 
 
+def expose_like_footage(srgb: np.ndarray, radiance: np.ndarray | None,
+                        rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray | None]:
+    """Another white balance and a brighter exposure, as another phone would have chosen: the
+    linear input and its true radiance are both multiplied by per-channel gains >= 1 (a
+    brightest-channel gain of 1-2, i.e. 0-1 stop, times a white-balance ratio of up to 1.25
+    between channels), and the input is clipped again at white. Gains >= 1 keep every pixel
+    that was clipped clipped, so the HDR target stays exact. srgb: (H, W, 3) float32 in [0, 1];
+    radiance: (H, W, 3) linear or None. Returns (8-bit-valued srgb, radiance)."""
+    from ..color import linear_to_srgb, srgb_to_linear
+
+    gains = np.exp(rng.uniform(0.0, np.log(1.25), 3)).astype(np.float32)
+    gains *= np.float32(np.exp(rng.uniform(0.0, np.log(2.0)))) / gains.min()
+    lin = np.clip(srgb_to_linear(np.clip(srgb, 0.0, 1.0)) * gains, 0.0, 1.0)
+    out = np.round(linear_to_srgb(lin) * 255.0) / 255.0
+    return out.astype(np.float32), (None if radiance is None else (radiance * gains).astype(np.float32))
+
+
 @dataclass(frozen=True)
 class Augment:
     """Random resize (relative to the stored size) and crop of training samples.
@@ -823,6 +840,10 @@ class Augment:
     degrade: float = 0.0
     """Probability that a ground-truth-only sample's input is degraded like phone footage
     (:func:`degrade_like_footage`: blur, sensor noise, JPEG); its targets are unchanged."""
+    expose: float = 0.0
+    """Probability that a ground-truth-only sample gets another white balance and exposure
+    (:func:`expose_like_footage`; applied before ``degrade``; D unchanged, the HDR target
+    follows)."""
 
 
 class TrainingSet:
@@ -921,14 +942,16 @@ class TrainingSet:
             third = src.members[names[1]]
             adjusted = (prep(members[1]), third.alpha, third.beta * px_scale)
         inp = prep(image)
+        hdr = None if src.gt_hdr is None else crop_flip(resize_radiance(read_gt_radiance(src.gt_hdr, (w, h)), size))
+        if kind == "gt" and aug.expose > 0 and float(rng.random()) < aug.expose:
+            inp, hdr = expose_like_footage(inp, hdr, rng)
         if kind == "gt" and aug.degrade > 0 and float(rng.random()) < aug.degrade:
             inp = degrade_like_footage(inp, rng)
         gt_d = gt_e = sat = None
         if src.gt_disparity is not None:
             gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h), src.unsupervised_ids), size)
                              * px_scale)
-        if src.gt_hdr is not None:
-            hdr = crop_flip(resize_radiance(read_gt_radiance(src.gt_hdr, (w, h)), size))
+        if hdr is not None:
             gt_e, sat = exponent_target(inp, hdr)
         if kind == "gt":  # no shallow-DOF image: the supervised terms alone (target unused)
             return TrainSample(src.name, kind, inp, inp, 1.0, 0.0, frame_width, None, gt_d, gt_e, sat,

@@ -84,6 +84,8 @@ class TrainSettings:
     """Share of draws from procedural frames (``rvr procedural``) when there are other sources too."""
     degrade: float = 0.0
     """Probability that a ground-truth-only sample's input is degraded like phone footage."""
+    expose: float = 0.0
+    """Probability that a ground-truth-only sample gets another white balance and exposure."""
     inference_max_pixels: int | None = None
     """Written into the weights' header: the trunk size inference uses by default (None: full size)."""
     vgg19: Path | None = None
@@ -203,8 +205,9 @@ class Trainer(TrainingRun):
             raise InputError(f"whole_frame (--whole-frame) is a probability in [0, 1], got {s.whole_frame}")
         if not 0.0 <= s.gt_share <= 1.0:
             raise InputError(f"gt_share (--gt-share) is a probability in [0, 1], got {s.gt_share}")
-        if not 0.0 <= s.degrade <= 1.0:
-            raise InputError(f"degrade (--degrade) is a probability in [0, 1], got {s.degrade}")
+        for flag, value in (("degrade", s.degrade), ("expose", s.expose)):
+            if not 0.0 <= value <= 1.0:
+                raise InputError(f"{flag} (--{flag}) is a probability in [0, 1], got {value}")
         if not 0.0 <= s.procedural_share <= 1.0:
             raise InputError(f"procedural_share (--procedural-share) is a probability in [0, 1], got "
                              f"{s.procedural_share}")
@@ -224,7 +227,7 @@ class Trainer(TrainingRun):
                                      motion=s.align_motion, progress=progress)
         self.data = TrainingSet(sources, Augment(crop=s.crop, scale_range=s.scale_range, whole_frame=s.whole_frame,
                                                  gt_share=s.gt_share, procedural_share=s.procedural_share,
-                                                 degrade=s.degrade),
+                                                 degrade=s.degrade, expose=s.expose),
                                 self.report)
         self.vgg = load_vgg19(s.vgg19) if s.vgg19 is not None else None
         model_cfg = s.model
@@ -278,7 +281,7 @@ class Trainer(TrainingRun):
             "data": [str(p) for p in s.data], "user_photos": [str(p) for p in s.user_photos],
             "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop,
             "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share,
-            "procedural_share": s.procedural_share, "degrade": s.degrade, "seed": s.seed,
+            "procedural_share": s.procedural_share, "degrade": s.degrade, "expose": s.expose, "seed": s.seed,
             "ignore_prints": s.ignore_prints,
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),

@@ -187,6 +187,8 @@ def test_degraded_inputs_keep_their_targets(tmp_path, pool):
     worn = TrainingSet(sources, Augment(crop=24, degrade=1.0)).make(sources[0], np.random.default_rng(5))
     assert not np.array_equal(plain.image, worn.image)
     assert np.array_equal(plain.gt_disparity, worn.gt_disparity)
+    lit = TrainingSet(sources, Augment(crop=24, expose=1.0)).make(sources[0], np.random.default_rng(5))
+    assert float(lit.image.mean()) > float(plain.image.mean()) and np.array_equal(plain.gt_disparity, lit.gt_disparity)
     from estimate_synth import make_clip
 
     make_clip(tmp_path / "clips" / "clip0", seed=5, frames=1)
@@ -194,6 +196,29 @@ def test_degraded_inputs_keep_their_targets(tmp_path, pool):
     a = TrainingSet([src], Augment(crop=24)).make(src, np.random.default_rng(5))
     b = TrainingSet([src], Augment(crop=24, degrade=1.0)).make(src, np.random.default_rng(5))
     assert a.kind != "gt" and np.array_equal(a.image, b.image)
+
+
+def test_exposure_changes_keep_clipped_pixels_and_the_hdr_target_consistent():
+    """--expose: gains >= 1 (at most 1 stop times a 1.25 white-balance ratio) multiply the linear
+    input and the true radiance alike, so a clipped pixel stays clipped and the exponent target
+    of an unclipped pixel stays 0."""
+    from rvr_addon.color import srgb_to_linear
+    from rvr_addon.estimate.data import exponent_target, expose_like_footage
+
+    img = np.full((4, 4, 3), 0.2, np.float32)
+    img[0, 0] = 1.0
+    hdr = srgb_to_linear(img).astype(np.float32)
+    hdr[0, 0] = 8.0
+    for seed in range(20):
+        out, rad = expose_like_footage(img, hdr, np.random.default_rng(seed))
+        gains = rad[1, 1] / hdr[1, 1]
+        assert np.all(gains >= 1 - 1e-6) and gains.max() <= 2.0 * 1.25 + 1e-5
+        assert np.array_equal(np.round(out * 255), out * 255) and np.all(out[0, 0] == 1.0)
+        assert np.allclose(srgb_to_linear(out[1, 1]), np.minimum(srgb_to_linear(img[1, 1]) * gains, 1), atol=3e-3)
+        e, sat = exponent_target(out, rad)
+        assert sat[0, 0] and np.allclose(e[0, 0], np.log(8.0 * gains) / 50, atol=1e-4)
+        assert not sat[1, 1] or out[1, 1].max() == 1.0
+    assert expose_like_footage(img, None, np.random.default_rng(0))[1] is None
 
 
 def test_parallel_workers_write_the_same_frames(tmp_path, pool, capsys):

@@ -302,3 +302,44 @@ def test_panels_layout():
     assert grid([img] * 4, 3).shape == (72, 192, 3)
     comp = comparison_image([("input", img), ("GT", img)], (0, 9, 0, 16))
     assert comp.shape == (20 + 36 + 36, 128, 3)
+
+
+def _panning(n: int, shift: int = 2, seed: int = 3):
+    """n frames of a smooth random texture panning right by ``shift`` px a frame (uint8 input)
+    and the matching window offsets."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    wide = cv2.GaussianBlur(rng.random((48, 64 + shift * n, 3)).astype(np.float32), (0, 0), 1.5)
+    wide = (wide - wide.min()) / (wide.max() - wide.min())
+    for i in range(n):
+        x0 = shift * (n - i)  # the scene moves right across the frame
+        yield np.round(wide[:, x0:x0 + 64] * 255).astype(np.uint8), x0
+
+
+def test_warped_flicker_ignores_an_error_moving_with_the_scene_and_counts_a_changing_one():
+    """A steady error that pans with the scene is a large 'flicker vs exact' but ~0 warped
+    flicker; the same error with an alternating offset is warped flicker too."""
+    frames = list(_panning(5))
+    flow, valid = m.evaluation_flow(frames[0][0], frames[1][0])
+    inner = valid[8:-8, 8:-8]
+    assert inner.mean() > 0.9 and np.allclose(flow[8:-8, 8:-8][inner], (-2.0, 0.0), atol=0.3)
+
+    def error_of(img: np.ndarray) -> np.ndarray:
+        return 0.1 * (img.astype(np.float32) / 255.0 - 0.5)  # a wrong blur tied to the texture
+
+    steady, jumpy = RunScorer(), RunScorer()
+    for i, (img, _) in enumerate(frames):
+        ref = (img.astype(np.float32) / 255.0) ** 2.2  # linear radiance of the "exact" render
+        for scorer, offset in ((steady, 0.0), (jumpy, 0.02 * (i % 2))):
+            out_s = np.clip(m.display_srgb(ref) + error_of(img) + offset, 0, 1)
+            scorer.add(i + 1, out_s ** 2.2, ref, np.zeros(img.shape[:2]), np.zeros(img.shape[:2]), 0.0, 1.0, ref,
+                       input_srgb=img)
+    s, j = steady.result(), jumpy.result()
+    assert s["flicker_exact"] > 3 * s["flicker_exact_warped"]
+    assert s["flicker_exact_warped"] < 0.003 and j["flicker_exact_warped"] > 0.015
+    assert math.isnan(steady.frames[0].flicker_exact_warped)
+    without = RunScorer()
+    without.add(1, ref, ref, np.zeros((48, 64)), np.zeros((48, 64)), 0.0, 1.0, ref)
+    without.add(2, ref, ref, np.zeros((48, 64)), np.zeros((48, 64)), 0.0, 1.0, ref)
+    assert math.isnan(without.result()["flicker_exact_warped"])
