@@ -1,5 +1,5 @@
 """Temporal stabilization (paper 4.2): speed at 640x360 and 1920x1080, and how much it cuts the
-flicker of the rendered video, on SIMULATED per-frame estimates (no trained estimator yet).
+flicker of the rendered video, on SIMULATED per-frame estimates and on the shipped estimator's.
 
     .venv/bin/python bench/temporal_bench.py [--frames 24] [--frames-1080p 12] [--dataset DIR] [--max-frames N]
 
@@ -27,10 +27,15 @@ and centred filter (:func:`real_study`):
 keys ``temporal.real.<clip>.<off|causal|centred>.<d_flicker_px|render_flicker>``, their
 ``_reduction`` per clip and the means over clips ``temporal.real.<causal|centred>.<...>_reduction``.
 
-``--dataset DIR``: harness clips (sintel_eval/DATASET.md) scored against Cycles with the
-ablation's own rows ``temporal_off / temporal_causal / temporal_centred`` (simulated
-estimates of each clip's ground truth) and ``ours_gt``: keys ``temporal.<clip>.<row>.<metric>``
-(mean over the clip's focus tracks) and the means over clips ``temporal.harness.<row>.<metric>``.
+``--dataset DIR``: harness clips (sintel_eval/DATASET.md) scored with the ablation's own rows
+``temporal_off / temporal_causal / temporal_centred`` (simulated estimates of each clip's
+ground truth), the same three on the shipped estimator's per-frame estimates
+(``temporal_*_est``; left out with ``--no-estimator`` or when torch or the weights are missing)
+and ``ours_gt``: keys ``temporal.<clip>.<row>.<metric>`` (mean over the clip's focus tracks) and
+the means over clips ``temporal.harness.<row>.<metric>``, for ``flicker`` (against Cycles),
+``flicker_exact`` and the motion-compensated ``flicker_exact_warped`` (against ``ours_gt``;
+sintel_eval/scoring.py), PSNR, splotchiness and bokeh recall; for the causal and centred rows
+also ``<metric>_reduction`` = 1 - row / the matching ``off`` row and ``psnr_change_db``.
 
 The last line of stdout is one flat JSON object (DESIGN.md keys).
 """
@@ -200,14 +205,21 @@ def real_study(clips: list[Path], frames: int, weights: Path | None = None) -> d
     return result
 
 
-def dataset_study(dataset: Path, max_frames: int | None) -> dict[str, float]:
-    """The ablation's temporal rows on harness clips, scored against Cycles (simulated estimates)."""
-    from sintel_eval.ablate import run_variant
+def dataset_study(dataset: Path, max_frames: int | None, estimated: bool = True) -> dict[str, float]:
+    """The ablation's temporal rows on harness clips, scored against Cycles and against our
+    render of the exact inputs (``ours_gt``): on simulated estimates (``temporal_*``) and, when
+    ``estimated`` and the shipped estimator can run, on its real per-frame estimates
+    (``temporal_*_est``)."""
+    from sintel_eval import estimator_inputs
+    from sintel_eval.ablate import REFERENCE_VARIANT, run_variant
     from sintel_eval.reader import ClipReader, find_clips
     from sintel_eval.scoring import ScoreSettings, aggregate
     from sintel_eval.variants import select
 
-    rows = select(["ours_gt", "temporal_off", "temporal_causal", "temporal_centred"])
+    families = [""] + (["_est"] if estimated and estimator_inputs.unavailable() is None else [])
+    names = [REFERENCE_VARIANT] + [f"temporal_{w}{f}" for f in families for w in ("off", "causal", "centred")]
+    rows = select(names)
+    metrics = ("flicker", "flicker_exact", "flicker_exact_warped", "psnr_srgb_db", "splotchiness_px", "bokeh_recall")
     result: dict[str, float] = {}
     per_row: dict[str, list[dict[str, float]]] = {v.name: [] for v in rows}
     with tempfile.TemporaryDirectory() as tmp:
@@ -219,31 +231,38 @@ def dataset_study(dataset: Path, max_frames: int | None) -> dict[str, float]:
             except Exception as ex:  # noqa: BLE001 - an incomplete clip is reported, not fatal
                 print(f"skipping {folder.name}: {ex}", file=sys.stderr)
                 continue
+            runs: dict[str, list[dict[str, float]]] = {v.name: [] for v in rows}
+            for track in tracks:
+                exact: dict[int, np.ndarray] = {}
+                for v in rows:  # the reference first: the others' flicker_exact needs its frames
+                    is_ref = v.name == REFERENCE_VARIANT
+                    runs[v.name].append(run_variant(reader, track, v, Path(tmp) / reader.name / track / v.name,
+                                                    ScoreSettings(), max_frames, reference=None if is_ref else exact,
+                                                    keep=exact if is_ref else None).metrics)
             for v in rows:
-                runs = [run_variant(reader, track, v, Path(tmp) / reader.name / track / v.name, ScoreSettings(),
-                                    max_frames).metrics for track in tracks]
-                figures = aggregate(runs)
+                figures = aggregate(runs[v.name])
                 per_row[v.name].append(figures)
-                for metric in ("flicker", "psnr_srgb_db", "splotchiness_px", "bokeh_recall"):
+                for metric in metrics:
                     result[f"temporal.{reader.name}.{v.name}.{metric}"] = figures[metric]
-                print(f"{reader.name} {v.name}: flicker {figures['flicker']:.5f} psnr {figures['psnr_srgb_db']:.2f} dB",
-                      file=sys.stderr)
+                print(f"{reader.name} {v.name}: flicker {figures['flicker']:.5f} vs exact {figures['flicker_exact']:.5f} "
+                      f"warped {figures['flicker_exact_warped']:.5f} psnr {figures['psnr_srgb_db']:.2f} dB", file=sys.stderr)
     for name, figs in per_row.items():
         if figs:
             agg = aggregate(figs)
-            for metric in ("flicker", "psnr_srgb_db"):
+            for metric in metrics:
                 result[f"temporal.harness.{name}.{metric}"] = agg[metric]
-    if per_row["temporal_off"]:
-        off_f = result["temporal.harness.temporal_off.flicker"]
-        off_p = result["temporal.harness.temporal_off.psnr_srgb_db"]
+    for fam in families:
+        if not per_row[f"temporal_off{fam}"]:
+            continue
+        off = {k: result[f"temporal.harness.temporal_off{fam}.{k}"] for k in metrics}
         floor = result.get("temporal.harness.ours_gt.flicker", 0.0)
         for w in ("causal", "centred"):
-            f = result[f"temporal.harness.temporal_{w}.flicker"]
-            result[f"temporal.harness.temporal_{w}.flicker_reduction"] = 1.0 - f / off_f
-            result[f"temporal.harness.temporal_{w}.excess_flicker_reduction"] = 1.0 - (f - floor) / (off_f - floor)
-            result[f"temporal.harness.temporal_{w}.psnr_change_db"] = (
-                result[f"temporal.harness.temporal_{w}.psnr_srgb_db"] - off_p)
-        result["temporal.harness.clips"] = float(len(per_row["temporal_off"]))
+            key = f"temporal.harness.temporal_{w}{fam}"
+            for metric in ("flicker", "flicker_exact", "flicker_exact_warped"):
+                result[f"{key}.{metric}_reduction"] = 1.0 - result[f"{key}.{metric}"] / off[metric]
+            result[f"{key}.excess_flicker_reduction"] = 1.0 - (result[f"{key}.flicker"] - floor) / (off["flicker"] - floor)
+            result[f"{key}.psnr_change_db"] = result[f"{key}.psnr_srgb_db"] - off["psnr_srgb_db"]
+    result["temporal.harness.clips"] = float(len(per_row[REFERENCE_VARIANT]))
     return result
 
 
@@ -254,6 +273,8 @@ def main() -> None:
     parser.add_argument("--dataset", type=Path, help="harness clips to score against Cycles (sintel_eval/DATASET.md)")
     parser.add_argument("--max-frames", type=int, help="with --dataset: the first N frames of each clip")
     parser.add_argument("--no-speed", action="store_true", help="skip the speed runs")
+    parser.add_argument("--no-estimator", action="store_true",
+                        help="with --dataset: only the simulated estimates, not the shipped estimator's")
     parser.add_argument("--real", nargs="*", type=Path, metavar="CLIP",
                         help="real clips for the flicker of the shipped estimator on still pixels (no ground truth); "
                              "no CLIP: the three of ../shared/data/clips")
@@ -275,7 +296,7 @@ def main() -> None:
                       f"{r['mean_s_per_frame']:.3f} mean, {r['cpu_s_per_frame']:.3f} CPU s/frame", file=sys.stderr)
     result.update(flicker_study(args.frames))
     if args.dataset is not None:
-        result.update(dataset_study(args.dataset, args.max_frames))
+        result.update(dataset_study(args.dataset, args.max_frames, estimated=not args.no_estimator))
     if args.real is not None:
         clips = args.real or [ROOT.parent / "shared" / "data" / "clips" / c for c in REAL_CLIPS]
         result.update(real_study(clips, args.real_frames))
