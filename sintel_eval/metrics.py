@@ -321,8 +321,9 @@ def warped_flicker(err_prev: np.ndarray, err: np.ndarray, flow: np.ndarray, vali
     """Motion-compensated flicker of an error image: mean over the ``valid`` pixels (and the
     channels) of ``|err_t - warp(err_{t-1})|``, where ``warp`` brings frame t-1 onto t along
     ``flow`` (:func:`evaluation_flow`, bilinear). ``err`` = output - reference: an error that
-    moves with the scene (a consistently wrong blur on a panning wall) scores ~0, an error that
-    changes along the motion scores its change. Units of the arrays. NaN on an empty mask."""
+    moves rigidly with the scene (a consistently wrong blur on a panning wall) scores ~0, an
+    error that changes along the motion scores its change (so does a steady wrong blur where
+    parallax or occlusion reshapes it). Units of the arrays. NaN on an empty mask."""
     from rvr_addon.temporal.flow import warp
 
     err_prev, err = _check_pair(err_prev, err, "warped_flicker")

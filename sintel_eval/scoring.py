@@ -19,8 +19,9 @@ images, for flicker) and pools the per-frame pieces of :mod:`.metrics` into clip
   ``|e_t - warp(e_{t-1})|`` with ``e = out - ref`` (sRGB), warped along the input's optical
   flow (:func:`.metrics.evaluation_flow`) on its consistent pixels. ``flicker_exact`` also
   counts an error that merely moves with the scene (a consistently wrong blur on a panning
-  wall changes every pixel's value); this one counts only errors that change along the motion,
-  i.e. flicker. Needs the input frames (``input_srgb``);
+  wall changes every pixel's value); this one counts errors that change along the motion
+  (a wrong but steady depth still scores a little: defocus of a moving scene is not a rigid
+  warp of the error image). Needs the input frames (``input_srgb``);
 - ``bokeh_recall``: found / total highlight energy pooled over frames (0..1).
 
 A figure with nothing to measure (no edge in the clip, no highlight, a single frame for

@@ -28,6 +28,8 @@ runs a whole clip at once (tests, tools).
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import io
 import json
 import logging
 import math
@@ -52,6 +54,8 @@ WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
 
 def load_afnet(path: str | Path | None = None) -> tuple[AFNet, dict]:
     """(model in eval mode, header dict) from an exported weights file (default: the shipped one).
+    The header gains ``file_id``: the first 16 hex digits of the file's SHA-256 (what a batch's
+    fingerprint records), read from the same bytes as the model.
 
     Raises InputError naming the path and the command that makes the file when it is missing,
     unreadable, of another format or of another architecture."""
@@ -62,14 +66,15 @@ def load_afnet(path: str | Path | None = None) -> tuple[AFNet, dict]:
     if not path.is_file():
         raise InputError(f"AF-Net weights '{path}' not found: {make}")
     try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
+        data = path.read_bytes()
+        ck = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
     except Exception as ex:  # noqa: BLE001 - any unpickling failure means a corrupt or foreign file
         raise InputError(f"AF-Net weights '{path}' cannot be read ({type(ex).__name__}: {ex}); {make}") from ex
     if not isinstance(ck, dict) or ck.get("format") != WEIGHTS_FORMAT:
         raise InputError(f"'{path}' is not an AF-Net weights file ({WEIGHTS_FORMAT}; a checkpoint.pt is not one: "
                          f"use the run's afnet.pt); {make}")
     try:
-        header = json.loads(ck["header"])
+        header = {**json.loads(ck["header"]), "file_id": hashlib.sha256(data).hexdigest()[:16]}
         model = AFNet(AFNetConfig.from_dict(header["config"]))
         model.load_state_dict(ck["state_dict"])
     except (KeyError, ValueError, RuntimeError) as ex:

@@ -94,15 +94,11 @@ def afnet_id(settings: BatchSettings) -> str:
     """Id of the AF-Net weights preset learned uses (a hash of the file), for the fingerprint;
     "" for other presets. Loads them, so a missing or foreign file fails before any cluster
     starts, naming the file and the fix."""
-    import hashlib
-
-    from ..afnet.infer import DEFAULT_WEIGHTS, load_afnet
+    from ..afnet.infer import load_afnet
 
     if settings.preset != "learned":
         return ""
-    load_afnet(settings.afnet_weights)
-    path = Path(settings.afnet_weights) if settings.afnet_weights is not None else DEFAULT_WEIGHTS
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    return load_afnet(settings.afnet_weights)[1]["file_id"]
 
 
 def plan_clips(clips: list[Path], settings: BatchSettings, fingerprint: str) -> list[ClipPlan]:

@@ -410,14 +410,16 @@ def _member(clip: Path, name: str, rec: dict, sidecar: Path) -> Member:
     return Member(path, alpha, beta)
 
 
-def harness_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False) -> list[SampleSource]:
+def harness_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False,
+                    clips: list[Path] | None = None) -> list[SampleSource]:
     """Training sources of every harness clip under ``root`` (see the module docstring).
 
     Incomplete frames and malformed sidecars are skipped and counted in ``report``.
     ignore_prints: leave the photo prints out of the disparity supervision (module docstring).
+    clips: :func:`find_harness_clips` of ``root`` when the caller has already walked it.
     Raises InputError when ``root`` holds no harness clip.
     """
-    clips = find_harness_clips(root)
+    clips = find_harness_clips(root) if clips is None else clips
     if not clips:
         raise InputError(f"'{root}' holds no harness clip (no manifest.json of format '{HARNESS_FORMAT}...' in it "
                          "or its sub-folders); generate clips with `python -m sintel_eval generate -o DIR`.")
@@ -512,8 +514,9 @@ def training_sources(root: str | Path, report: SkipReport, ignore_prints: bool =
                          "`python -m sintel_eval generate -o DIR` or `rvr procedural -o DIR`.")
     sets = find_procedural_sets(root)
     sources = [src for folder in sets for src in procedural_sources(folder, report)]
-    if find_harness_clips(root) or not sets:
-        sources += harness_sources(root, report, ignore_prints)
+    clips = find_harness_clips(root)
+    if clips or not sets:
+        sources += harness_sources(root, report, ignore_prints, clips)
     return sources
 
 

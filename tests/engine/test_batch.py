@@ -215,6 +215,9 @@ def test_learned_preset_settings_reach_autofocus_and_the_fingerprint(tmp_path):
     a = autofocus_settings(plan, s)
     assert (a.preset, a.afnet_weights, a.afnet_threshold, a.afnet_speaker) == ("learned", DEFAULT_WEIGHTS, 0.4, False)
     assert len(afnet_id(s)) == 16 and afnet_id(BatchSettings(output=tmp_path)) == ""
+    import hashlib  # the id is the file's hash, as before: earlier batches' fingerprints still match
+
+    assert afnet_id(s) == hashlib.sha256(DEFAULT_WEIGHTS.read_bytes()).hexdigest()[:16]
     assert s.fingerprint("x") != BatchSettings(output=tmp_path, preset="learned", afnet_weights=DEFAULT_WEIGHTS,
                                                afnet_threshold=0.4).fingerprint("x")
 
