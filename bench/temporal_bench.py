@@ -232,13 +232,14 @@ def dataset_study(dataset: Path, max_frames: int | None, estimated: bool = True)
                 print(f"skipping {folder.name}: {ex}", file=sys.stderr)
                 continue
             runs: dict[str, list[dict[str, float]]] = {v.name: [] for v in rows}
+            motions: dict = {}  # the clip's input motion, shared by every row and track
             for track in tracks:
                 exact: dict[int, np.ndarray] = {}
                 for v in rows:  # the reference first: the others' flicker_exact needs its frames
                     is_ref = v.name == REFERENCE_VARIANT
                     runs[v.name].append(run_variant(reader, track, v, Path(tmp) / reader.name / track / v.name,
                                                     ScoreSettings(), max_frames, reference=None if is_ref else exact,
-                                                    keep=exact if is_ref else None).metrics)
+                                                    keep=exact if is_ref else None, motions=motions).metrics)
             for v in rows:
                 figures = aggregate(runs[v.name])
                 per_row[v.name].append(figures)

@@ -36,7 +36,7 @@ from rvr_addon.errors import InputError, OutputError
 from rvr_addon.io.paths import replace_folder, temp_sibling
 
 from .cli_args import positive_int
-from .metrics import display_srgb
+from .metrics import display_srgb, evaluation_flow
 from .reader import ClipReader, find_clips
 from .scoring import RunScorer, ScoreSettings
 from .variants import VARIANTS, Variant, select
@@ -127,13 +127,17 @@ def _open_clips(ab: Ablation) -> list[tuple[ClipReader, list[str]]]:
 
 def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path, settings: ScoreSettings,
                 max_frames: int | None = None, progress: Any = None,
-                reference: dict[int, np.ndarray] | None = None, keep: dict[int, np.ndarray] | None = None
-                ) -> RunResult:
+                reference: dict[int, np.ndarray] | None = None, keep: dict[int, np.ndarray] | None = None,
+                motions: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> RunResult:
     """Render ``track`` of a clip with one variant, score every frame, keep 8-bit outputs.
 
     reference: linear renders from the exact inputs by frame number (``ours_gt``'s outputs),
     scored as ``flicker_exact``. keep: this run *is* that reference: its outputs are stored
     there (and it scores ``flicker_exact`` 0 against itself).
+    motions: the input's motion by frame number (:func:`.metrics.evaluation_flow` from each frame
+    to the one before), for ``flicker_exact_warped``: it depends only on the clip's input
+    frames, so one dict serves every variant and track of a clip; missing entries are computed
+    and stored in it.
 
     Raises InputError (naming the file) when a dataset file cannot be read.
     """
@@ -141,6 +145,8 @@ def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path,
     scorer = RunScorer(settings)
     outputs.mkdir(parents=True, exist_ok=True)
     seconds = 0.0
+    motions = {} if motions is None else motions
+    prev_input: np.ndarray | None = None
     for gt, inputs in variant.inputs(reader.iter_frames(track, max_frames)):
         t0 = time.perf_counter()
         out = render(inputs, gt.focus, gt.aperture)
@@ -149,8 +155,14 @@ def run_variant(reader: ClipReader, track: str, variant: Variant, outputs: Path,
             raise RuntimeError(f"variant {variant.name} returned an invalid frame {gt.frame} of "
                                f"{reader.name}/{track}: shape {out.shape}, finite={bool(np.all(np.isfinite(out)))}")
         ref = out if keep is not None else (reference.get(gt.frame) if reference else None)
+        motion = None
+        if ref is not None and prev_input is not None and prev_input.shape == gt.input_srgb.shape:
+            motion = motions.get(gt.frame)
+            if motion is None:
+                motion = motions[gt.frame] = evaluation_flow(prev_input, gt.input_srgb)
+        prev_input = gt.input_srgb
         scorer.add(gt.frame, out, gt.dof_linear, inputs.disparity, gt.disparity, gt.focus, gt.aperture, ref,
-                   input_srgb=gt.input_srgb)
+                   motion=motion)
         if keep is not None:
             keep[gt.frame] = out
         png = outputs / f"frame_{gt.frame:05d}.png"
@@ -208,6 +220,7 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
         with tqdm(total=total, unit="frame", disable=not progress, dynamic_ncols=True) as bar:
             for reader, tracks in clips:
                 clip_runs: list[RunResult] = []
+                motions: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # the clip's input motion
                 try:
                     for track in tracks:
                         exact: dict[int, np.ndarray] = {}  # ours_gt's renders (first in table order)
@@ -216,7 +229,8 @@ def run_ablation(dataset: str | Path, report: str | Path, *, variants: list[str]
                             out_dir = tmp / "_frames" / reader.name / track / variant.name
                             is_ref = variant.name == REFERENCE_VARIANT
                             clip_runs.append(run_variant(reader, track, variant, out_dir, ab.settings, max_frames, bar,
-                                                         reference=exact or None, keep=exact if is_ref else None))
+                                                         reference=exact or None, keep=exact if is_ref else None,
+                                                         motions=motions))
                 except InputError as ex:
                     log.warning("skipping clip %s: %s", reader.name, ex)
                     ab.skipped.append((reader.name, str(ex)))

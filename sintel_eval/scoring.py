@@ -21,7 +21,8 @@ images, for flicker) and pools the per-frame pieces of :mod:`.metrics` into clip
   counts an error that merely moves with the scene (a consistently wrong blur on a panning
   wall changes every pixel's value); this one counts errors that change along the motion
   (a wrong but steady depth still scores a little: defocus of a moving scene is not a rigid
-  warp of the error image). Needs the input frames (``input_srgb``);
+  warp of the error image). Needs the input's motion (``motion``, computed once per clip by
+  :func:`.ablate.run_variant`);
 - ``bokeh_recall``: found / total highlight energy pooled over frames (0..1).
 
 A figure with nothing to measure (no edge in the clip, no highlight, a single frame for
@@ -104,7 +105,6 @@ class RunScorer:
     _flicker: list[float] = field(default_factory=list)
     _flicker_exact: list[float] = field(default_factory=list)
     _flicker_warped: list[float] = field(default_factory=list)
-    _prev_input: np.ndarray | None = None
     _prev: tuple[np.ndarray, np.ndarray] | None = None
     _prev_ref: np.ndarray | None = None
     _band_px: int = 0
@@ -112,14 +112,15 @@ class RunScorer:
 
     def add(self, frame: int, out_linear: np.ndarray, gt_linear: np.ndarray, disparity_used: np.ndarray,
             disparity_gt: np.ndarray, focus: float, aperture: float,
-            ref_linear: np.ndarray | None = None, input_srgb: np.ndarray | None = None) -> FrameScore:
+            ref_linear: np.ndarray | None = None,
+            motion: tuple[np.ndarray, np.ndarray] | None = None) -> FrameScore:
         """Score one frame.
 
         out_linear / gt_linear: (H, W, 3) linear radiance of the variant and of the ground truth.
         ref_linear: optional (H, W, 3) render of the same frame from the exact inputs (for
         ``flicker_exact``; give it for every frame of the run or for none).
-        input_srgb: optional (H, W, 3) uint8 deep-DOF input frame, for the motion of
-        ``flicker_exact_warped`` (with ``ref_linear``).
+        motion: optional ``(flow, valid)`` from this frame's input to the previous frame's
+        (:func:`.metrics.evaluation_flow`), for ``flicker_exact_warped`` (with ``ref_linear``).
         disparity_used / disparity_gt: (H, W) DESIGN units, what the variant rendered with and
         the truth. focus, aperture: the frame's focus disparity and aperture scale.
         """
@@ -157,15 +158,12 @@ class RunScorer:
             fl_exact = m.flicker(self._prev[0], out_s, self._prev_ref, ref_s)
             self._flicker_exact.append(fl_exact)
         fl_warped = float("nan")
-        if not math.isnan(fl_exact) and input_srgb is not None and self._prev_input is not None \
-                and input_srgb.shape == self._prev_input.shape:
-            motion, valid = m.evaluation_flow(self._prev_input, input_srgb)
-            fl_warped = m.warped_flicker(self._prev[0] - self._prev_ref, out_s - ref_s, motion, valid)
+        if not math.isnan(fl_exact) and motion is not None:
+            fl_warped = m.warped_flicker(self._prev[0] - self._prev_ref, out_s - ref_s, *motion)
             if not math.isnan(fl_warped):
                 self._flicker_warped.append(fl_warped)
         self._prev = (out_s, gt_s)
         self._prev_ref = ref_s
-        self._prev_input = input_srgb
 
         band_sse, band_n = pieces["band_srgb"]
         score = FrameScore(

@@ -331,10 +331,11 @@ def test_warped_flicker_ignores_an_error_moving_with_the_scene_and_counts_a_chan
     steady, jumpy = RunScorer(), RunScorer()
     for i, (img, _) in enumerate(frames):
         ref = (img.astype(np.float32) / 255.0) ** 2.2  # linear radiance of the "exact" render
+        motion = m.evaluation_flow(frames[i - 1][0], img) if i else None
         for scorer, offset in ((steady, 0.0), (jumpy, 0.02 * (i % 2))):
             out_s = np.clip(m.display_srgb(ref) + error_of(img) + offset, 0, 1)
             scorer.add(i + 1, out_s ** 2.2, ref, np.zeros(img.shape[:2]), np.zeros(img.shape[:2]), 0.0, 1.0, ref,
-                       input_srgb=img)
+                       motion=motion)
     s, j = steady.result(), jumpy.result()
     assert s["flicker_exact"] > 3 * s["flicker_exact_warped"]
     assert s["flicker_exact_warped"] < 0.003 and j["flicker_exact_warped"] > 0.015
