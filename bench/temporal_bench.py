@@ -36,6 +36,12 @@ the means over clips ``temporal.harness.<row>.<metric>``, for ``flicker`` (again
 ``flicker_exact`` and the motion-compensated ``flicker_exact_warped`` (against ``ours_gt``;
 sintel_eval/scoring.py), PSNR, splotchiness and bokeh recall; for the causal and centred rows
 also ``<metric>_reduction`` = 1 - row / the matching ``off`` row and ``psnr_change_db``.
+With the estimator rows comes ``temporal_ideal_est``, the bound of any temporal filter on those
+estimates (sintel_eval/ideal_filter.py: every pixel's error averaged over all frames that see the
+same scene point, exact correspondences from the ground truth), with its own ``_reduction`` keys,
+and for the causal and centred ``_est`` rows ``<flicker_exact|flicker_exact_warped>_attainable_share``
+= (off - row) / (off - ideal): the share of the reduction any filter could reach that the row
+reaches.
 
 The last line of stdout is one flat JSON object (DESIGN.md keys).
 """
@@ -218,6 +224,8 @@ def dataset_study(dataset: Path, max_frames: int | None, estimated: bool = True)
 
     families = [""] + (["_est"] if estimated and estimator_inputs.unavailable() is None else [])
     names = [REFERENCE_VARIANT] + [f"temporal_{w}{f}" for f in families for w in ("off", "causal", "centred")]
+    if "_est" in families:
+        names.append("temporal_ideal_est")
     rows = select(names)
     metrics = ("flicker", "flicker_exact", "flicker_exact_warped", "psnr_srgb_db", "splotchiness_px", "bokeh_recall")
     result: dict[str, float] = {}
@@ -257,10 +265,15 @@ def dataset_study(dataset: Path, max_frames: int | None, estimated: bool = True)
             continue
         off = {k: result[f"temporal.harness.temporal_off{fam}.{k}"] for k in metrics}
         floor = result.get("temporal.harness.ours_gt.flicker", 0.0)
-        for w in ("causal", "centred"):
+        ideal = "temporal.harness.temporal_ideal_est" if fam == "_est" and per_row.get("temporal_ideal_est") else None
+        for w in ("causal", "centred", "ideal") if ideal else ("causal", "centred"):
             key = f"temporal.harness.temporal_{w}{fam}"
             for metric in ("flicker", "flicker_exact", "flicker_exact_warped"):
                 result[f"{key}.{metric}_reduction"] = 1.0 - result[f"{key}.{metric}"] / off[metric]
+                if ideal and w != "ideal" and metric != "flicker":
+                    attainable = off[metric] - result[f"{ideal}.{metric}"]
+                    result[f"{key}.{metric}_attainable_share"] = (
+                        (off[metric] - result[f"{key}.{metric}"]) / attainable if attainable > 0 else float("nan"))
             result[f"{key}.excess_flicker_reduction"] = 1.0 - (result[f"{key}.flicker"] - floor) / (off["flicker"] - floor)
             result[f"{key}.psnr_change_db"] = result[f"{key}.psnr_srgb_db"] - off["psnr_srgb_db"]
     result["temporal.harness.clips"] = float(len(per_row[REFERENCE_VARIANT]))

@@ -40,6 +40,9 @@ class GTFrame:
     disparity: (H, W) float32 ground-truth D, DESIGN units (px of blur radius at aperture 1).
     dof_linear: (H, W, 3) float32 Cycles' shallow-DOF render of the track, linear radiance.
     focus: focus disparity f (DESIGN units); aperture: aperture scale a.
+    depth_m: (H, W) float32 planar depth in m (channel Z of gt/disparity), world_to_camera: (4, 4)
+    the frame's camera (manifest ``camera_per_frame``), f_px: focal length in px; None when the
+    clip lacks them (only the ideal-filter row needs them).
     """
 
     frame: int
@@ -51,6 +54,9 @@ class GTFrame:
     dof_linear: np.ndarray
     focus: float
     aperture: float
+    depth_m: np.ndarray | None = None
+    world_to_camera: np.ndarray | None = None
+    f_px: float | None = None
 
 
 def _load_json(path: Path, what: str) -> Any:
@@ -140,6 +146,43 @@ def _channels(path: Path, names: tuple[str, ...], alternatives: tuple[tuple[str,
                      "it was not written by the harness: regenerate the clip.")
 
 
+def _disparity_and_depth(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """D (H, W) float32 of a gt/disparity EXR (InputError if missing or not finite) and its planar
+    depth Z in m (None when the file has no Z channel; non-finite values become NaN)."""
+    ch = read_exr(path)
+    if "D" not in ch:
+        raise InputError(f"EXR '{path}' lacks channel D (it has {', '.join(sorted(ch))}); regenerate the clip.")
+    d = ch["D"].astype(np.float32, copy=False)
+    if not np.all(np.isfinite(d)):
+        raise InputError(f"EXR '{path}' holds NaN or infinite values; regenerate this frame "
+                         "(delete its done marker and re-run generate).")
+    z = ch.get("Z")
+    if z is not None:
+        z = np.where(np.isfinite(z), z, np.nan).astype(np.float32)
+    return d, z
+
+
+def _per_frame_cameras(manifest: dict) -> dict[int, np.ndarray]:
+    """{frame number: (4, 4) world_to_camera} from ``camera_per_frame`` (empty when absent or malformed)."""
+    out: dict[int, np.ndarray] = {}
+    for rec in manifest.get("camera_per_frame") or []:
+        try:
+            m = np.asarray(rec["world_to_camera"], dtype=np.float64)
+            if m.shape == (4, 4) and np.all(np.isfinite(m)):
+                out[int(rec["frame"])] = m
+        except (KeyError, TypeError, ValueError):
+            continue
+    return out
+
+
+def _float_or_none(value: Any) -> float | None:
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None
+    return f if math.isfinite(f) and f > 0 else None
+
+
 def _png(path: Path) -> np.ndarray:
     if not path.is_file():
         raise InputError(f"Frame '{path}' is missing; re-run `python -m sintel_eval generate` to resume the clip.")
@@ -172,6 +215,7 @@ class ClipReader:
             raise InputError(f"Manifest '{self.folder / MANIFEST}' gives config.frames = {self.frames}; "
                              "regenerate the clip.")
         self.camera: dict = dict(self.manifest.get("camera", {}))
+        self._world_to_camera = _per_frame_cameras(self.manifest)
         self.spec = aperture_spec(self.camera)
 
     # -- tracks --------------------------------------------------------------------------
@@ -248,7 +292,7 @@ class ClipReader:
     def read(self, track: str, frame: int) -> GTFrame:
         """Load one frame of ``track``; InputError naming the file if one is missing or corrupt."""
         image = _png(self.path("input", frame))
-        disparity = _channels(self.path("disparity", frame), ("D",))[..., 0]
+        disparity, depth = _disparity_and_depth(self.path("disparity", frame))
         exponent = _channels(self.path("exponent", frame), ("E.R", "E.G", "E.B"), (("R", "G", "B"),))
         radiance = _channels(self.path("hdr", frame), ("R", "G", "B"))
         dof = _channels(self.path("dof_exr", frame, track), ("R", "G", "B"))
@@ -260,7 +304,9 @@ class ClipReader:
                                  f"{shape[1]}x{shape[0]}; regenerate the clip.")
         focus, aperture = self.lens(track, frame)
         return GTFrame(frame=frame, index=frame - 1, input_srgb=image, exponent=exponent, radiance=radiance,
-                       disparity=disparity, dof_linear=dof, focus=focus, aperture=aperture)
+                       disparity=disparity, dof_linear=dof, focus=focus, aperture=aperture,
+                       depth_m=depth if depth is not None and depth.shape == shape else None,
+                       world_to_camera=self._world_to_camera.get(frame), f_px=_float_or_none(self.camera.get("f_px")))
 
     def iter_frames(self, track: str, max_frames: int | None = None) -> Iterator[GTFrame]:
         """Stream the frames of ``track`` in order (each read when requested)."""

@@ -1,15 +1,15 @@
 """Input stages of the temporal-filter ablation rows: "temporal filter off / causal / centred".
 
-No trained estimator exists yet, so the per-frame estimates these rows filter are
-**SIMULATED** by default: the clip's ground-truth D and E degraded with per-frame independent
-errors typical of a single-frame network (:func:`rvr_addon.temporal.simulate.simulate_estimates`),
+The per-frame estimates of the rows ``temporal_off / causal / centred`` are **SIMULATED**:
+the clip's ground-truth D and E degraded with per-frame independent errors typical of a
+single-frame network (:func:`rvr_addon.temporal.simulate.simulate_estimates`),
 seeded by the frame's content and index, so the three rows see identical estimates. The
 radiance is rebuilt from the 8-bit input and the (filtered) E, as the product does:
 ``srgb_to_linear(input) * exp(50 E)``.
 
-Real estimates replace the simulation by one argument: ``estimates=cache_estimates(CACHE)``
-(a cache written by ``rvr estimate`` for that clip) instead of the default
-``simulated_estimates()``.
+Real estimates replace the simulation by one argument: the ``temporal_*_est`` rows pass the
+trained estimator (:func:`.estimator_inputs.estimate`); ``estimates=cache_estimates(CACHE)``
+takes a cache written by ``rvr estimate`` for that clip.
 """
 from __future__ import annotations
 
@@ -60,7 +60,8 @@ def cache_estimates(folder: str | Path) -> Estimates:
     return estimate
 
 
-def _radiance(image_srgb: np.ndarray, exponent: np.ndarray) -> np.ndarray:
+def estimate_radiance(image_srgb: np.ndarray, exponent: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32 linear radiance the product renders: ``srgb_to_linear(input) * exp(50 E)``."""
     return np.asarray(hdr_radiance(srgb_to_linear(to_float01(image_srgb)), exponent), dtype=np.float32)
 
 
@@ -76,7 +77,7 @@ def temporal_stage(window: str | None, estimates: Estimates | None = None,
         if window is None:
             for fr in frames:
                 d, e = get(fr)
-                yield fr, RenderInputs(fr.input_srgb, _radiance(fr.input_srgb, e), d)
+                yield fr, RenderInputs(fr.input_srgb, estimate_radiance(fr.input_srgb, e), d)
             return
         base = settings or TemporalSettings()
         filt = TemporalFilter(TemporalSettings(**{**base.to_dict(), "window": window}))
@@ -87,7 +88,7 @@ def temporal_stage(window: str | None, estimates: Estimates | None = None,
                 while waiting and waiting[0].index < index:
                     waiting.popleft()
                 fr = waiting.popleft()
-                yield fr, RenderInputs(fr.input_srgb, _radiance(fr.input_srgb, e_s), d_s)
+                yield fr, RenderInputs(fr.input_srgb, estimate_radiance(fr.input_srgb, e_s), d_s)
 
         for fr in frames:
             d, e = get(fr)

@@ -34,6 +34,7 @@ from rvr_addon.render.fast import FastRenderer
 from rvr_addon.render.model import hdr_radiance
 
 from . import estimator_inputs
+from .ideal_filter import ideal_stage
 from .reader import GTFrame
 from .temporal_inputs import temporal_stage
 
@@ -172,8 +173,9 @@ VARIANTS: tuple[Variant, ...] = (
             "ours with the ground-truth disparity and the estimator's HDR exponent E",
             per_frame(gt_disparity, estimator_inputs.estimated_hdr_radiance), ours(), requires=("torch",),
             check=estimator_inputs.unavailable),
-    # Temporal filter rows (paper 4.2): per-frame estimates SIMULATED from the GT (no trained
-    # estimator yet); sintel_eval/temporal_inputs.py says how to feed a real cache instead.
+    # Temporal filter rows (paper 4.2): per-frame estimates SIMULATED from the GT, with the
+    # errors of a single-frame network (sintel_eval/temporal_inputs.py); the _est rows below
+    # filter the trained estimator's.
     Variant("temporal_off", "temporal filter off (sim.)",
             "SIMULATED per-frame estimates (GT D and E with per-frame errors of a single-frame network), unfiltered",
             temporal_stage(None), ours()),
@@ -196,6 +198,13 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("temporal_centred_est", "estimated, centred filter",
             "the estimator's per-frame D and E through the centred temporal filter (3 past + 3 future frames)",
             temporal_stage("centred", estimator_inputs.estimate), ours(), requires=("torch",),
+            check=estimator_inputs.unavailable),
+    # The bound of any temporal filter on those estimates (sintel_eval/ideal_filter.py): the
+    # floor of the three rows above.
+    Variant("temporal_ideal_est", "estimated, ideal filter (bound)",
+            "the bound of any temporal filter: each pixel's D and E error averaged over every frame of the clip "
+            "that sees the same scene point (exact correspondences from the ground-truth depth and cameras)",
+            ideal_stage(estimator_inputs.estimate), ours(), requires=("torch",),
             check=estimator_inputs.unavailable),
 )
 """Every variant, in report order. The first is the reference row of the comparisons."""

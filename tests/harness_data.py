@@ -24,6 +24,7 @@ from rvr_addon.render.fast import FastRenderer
 from rvr_addon.render.model import hdr_radiance
 
 WALL_D = 4.0
+FAKE_F_PX = 100.0
 TRACKS = ("constant", "rack")
 
 
@@ -94,7 +95,9 @@ def write_fake_clip(folder: Path, *, frames: int = 3, size: tuple[int, int] = (6
     manifest = {
         "format": "rvr-laaf-harness/1", "config": config, "config_hash": config_hash,
         "camera": {"focal_mm": 50.0, "sensor_width_mm": 36.0, "f_number_ref": 1.0, "K_px": 20.0, "s_ref_m": 2.0,
-                   "blades": 0, "ratio": 1.0},
+                   "blades": 0, "ratio": 1.0, "f_px": FAKE_F_PX},
+        "camera_per_frame": [{"frame": n, "index": n - 1, "world_to_camera": np.eye(4).tolist()}
+                             for n in range(1, frames + 1)],  # a camera standing still
         "focus_tracks": {t: {"subjects": ["square"] if t == "constant" else ["square", "wall"]} for t in TRACKS},
         "events": [], "status": {"complete": True},
     }
