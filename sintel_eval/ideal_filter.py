@@ -38,15 +38,13 @@ from .reader import GTFrame
 from .temporal_inputs import Estimates, estimate_radiance
 
 if TYPE_CHECKING:
-    from .variants import InputStage, RenderInputs
+    from .variants import InputStage
 
 DEPTH_TOLERANCE = 0.02
 """A point is visible in another frame when that frame's depth there is within this fraction of
 the point's own depth in that frame."""
 HALF_WINDOW = 36
 """Frames on each side of t whose errors are averaged (the cost grows with its square)."""
-
-_memo: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
 
 
 def correspondence(depth_t: np.ndarray, world_to_camera_t: np.ndarray, world_to_camera_k: np.ndarray,
@@ -116,6 +114,8 @@ def ideal_stage(estimates: Estimates) -> "InputStage":
     the clip's other focus tracks)."""
     from .variants import RenderInputs
 
+    memo: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}  # the last clip's result
+
     def stage(frames: Iterator[GTFrame]) -> Iterator[tuple[GTFrame, RenderInputs]]:
         clip = list(frames)
         if not clip:
@@ -125,10 +125,10 @@ def ideal_stage(estimates: Estimates) -> "InputStage":
             digest.update(np.ascontiguousarray(fr.input_srgb).tobytes())
         digest.update(np.ascontiguousarray(estimates(clip[0])[0]).tobytes())  # other weights: other result
         key = digest.hexdigest()
-        if key not in _memo:
-            _memo.clear()  # one clip at a time: its tracks follow each other
-            _memo[key] = ideal_estimates(clip, estimates)
-        for fr, (d, e) in zip(clip, _memo[key]):
+        if key not in memo:
+            memo.clear()  # one clip at a time: its tracks follow each other
+            memo[key] = ideal_estimates(clip, estimates)
+        for fr, (d, e) in zip(clip, memo[key]):
             yield fr, RenderInputs(fr.input_srgb, estimate_radiance(fr.input_srgb, e), d)
 
     return stage
