@@ -47,21 +47,23 @@ HALF_WINDOW = 36
 """Frames on each side of t whose errors are averaged (the cost grows with its square)."""
 
 
-def correspondence(depth_t: np.ndarray, world_to_camera_t: np.ndarray, world_to_camera_k: np.ndarray,
-                   f_px: float, depth_k: np.ndarray, tolerance: float = DEPTH_TOLERANCE
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Where every pixel of frame t lands in frame k, and whether k sees it.
-
-    depth_t, depth_k: (H, W) planar depth in m of the two frames; world_to_camera_*: (4, 4)
-    (Blender camera, looks along -Z); f_px: focal length in px. Returns (maps (H, W, 2) float32
-    of frame-k pixel-array coordinates for ``cv2.remap``, visible (H, W) bool).
-    """
-    h, w = depth_t.shape
+def back_project(depth: np.ndarray, f_px: float) -> np.ndarray:
+    """(H, W, 4) homogeneous camera-space points (m) of every pixel centre of a frame with planar
+    depth ``depth`` (H, W) in m (Blender camera, looking along -Z; DATASET.md pixel convention)."""
+    h, w = depth.shape
     xs, ys = np.meshgrid(np.arange(w, dtype=np.float64) + 0.5, np.arange(h, dtype=np.float64) + 0.5)
-    s = depth_t.astype(np.float64)
-    cam_t = np.stack([(xs - w / 2.0) * s / f_px, -(ys - h / 2.0) * s / f_px, -s, np.ones_like(s)], axis=-1)
-    t_to_k = np.asarray(world_to_camera_k, np.float64) @ np.linalg.inv(np.asarray(world_to_camera_t, np.float64))
-    cam_k = cam_t @ t_to_k.T
+    s = depth.astype(np.float64)
+    return np.stack([(xs - w / 2.0) * s / f_px, -(ys - h / 2.0) * s / f_px, -s, np.ones_like(s)], axis=-1)
+
+
+def project_into(points_t: np.ndarray, t_to_k: np.ndarray, f_px: float, depth_k: np.ndarray,
+                 tolerance: float = DEPTH_TOLERANCE) -> tuple[np.ndarray, np.ndarray]:
+    """Where frame t's camera-space points (:func:`back_project`) land in frame k, and whether k
+    sees them. t_to_k: (4, 4) ``world_to_camera_k @ inv(world_to_camera_t)``; depth_k: (H, W)
+    planar depth of frame k in m. Returns (maps (H, W, 2) float32 of frame-k pixel-array
+    coordinates for ``cv2.remap``, visible (H, W) bool)."""
+    h, w = points_t.shape[:2]
+    cam_k = points_t @ np.asarray(t_to_k, np.float64).T
     s_k = -cam_k[..., 2]
     ahead = np.isfinite(s_k) & (s_k > 1e-6)
     safe = np.where(ahead, s_k, 1.0)
@@ -72,6 +74,16 @@ def correspondence(depth_t: np.ndarray, world_to_camera_t: np.ndarray, world_to_
                      borderValue=np.nan)
     visible = ahead & np.isfinite(seen) & (np.abs(seen - s_k) <= tolerance * safe)
     return maps, visible
+
+
+def correspondence(depth_t: np.ndarray, world_to_camera_t: np.ndarray, world_to_camera_k: np.ndarray,
+                   f_px: float, depth_k: np.ndarray, tolerance: float = DEPTH_TOLERANCE
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Where every pixel of frame t lands in frame k, and whether k sees it (:func:`project_into`
+    of :func:`back_project`). depth_t, depth_k: (H, W) planar depth in m; world_to_camera_*:
+    (4, 4); f_px: focal length in px."""
+    t_to_k = np.asarray(world_to_camera_k, np.float64) @ np.linalg.inv(np.asarray(world_to_camera_t, np.float64))
+    return project_into(back_project(depth_t, f_px), t_to_k, f_px, depth_k, tolerance)
 
 
 def ideal_estimates(frames: list[GTFrame], estimates: Estimates, half_window: int = HALF_WINDOW
@@ -94,10 +106,12 @@ def ideal_estimates(frames: list[GTFrame], estimates: Estimates, half_window: in
     for i, fr in enumerate(frames):
         acc = np.zeros(errors[i].shape, np.float64)
         count = np.zeros(fr.disparity.shape, np.float64)
+        points = back_project(fr.depth_m, fr.f_px)  # once per target frame, for every k
+        camera_to_world = np.linalg.inv(np.asarray(fr.world_to_camera, np.float64))
         for k in range(max(0, i - half_window), min(len(frames), i + half_window + 1)):
             other = frames[k]
-            maps, visible = correspondence(fr.depth_m, fr.world_to_camera, other.world_to_camera, fr.f_px,
-                                           other.depth_m)
+            maps, visible = project_into(points, np.asarray(other.world_to_camera, np.float64) @ camera_to_world,
+                                         fr.f_px, other.depth_m)
             carried = cv2.remap(errors[k], maps, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
             visible &= np.isfinite(carried).all(axis=-1)
             acc += np.where(visible[..., None], carried, 0.0)

@@ -132,9 +132,11 @@ def _marker_files(marker: dict) -> dict[str, int | None]:
     return out
 
 
-def _channels(path: Path, names: tuple[str, ...], alternatives: tuple[tuple[str, ...], ...] = ()) -> np.ndarray:
-    """Read an EXR and stack the named channels (H, W, C) float32; InputError names a missing one."""
-    ch = read_exr(path)
+def _channels(path: Path, names: tuple[str, ...], alternatives: tuple[tuple[str, ...], ...] = (),
+              ch: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """Stack the named channels of an EXR (H, W, C) float32; InputError names a missing one or
+    non-finite values. ch: the file's channels when the caller has already read it."""
+    ch = read_exr(path) if ch is None else ch
     for option in (names, *alternatives):
         if all(n in ch for n in option):
             arr = np.dstack([ch[n] for n in option]).astype(np.float32, copy=False)
@@ -150,12 +152,7 @@ def _disparity_and_depth(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
     """D (H, W) float32 of a gt/disparity EXR (InputError if missing or not finite) and its planar
     depth Z in m (None when the file has no Z channel; non-finite values become NaN)."""
     ch = read_exr(path)
-    if "D" not in ch:
-        raise InputError(f"EXR '{path}' lacks channel D (it has {', '.join(sorted(ch))}); regenerate the clip.")
-    d = ch["D"].astype(np.float32, copy=False)
-    if not np.all(np.isfinite(d)):
-        raise InputError(f"EXR '{path}' holds NaN or infinite values; regenerate this frame "
-                         "(delete its done marker and re-run generate).")
+    d = _channels(path, ("D",), ch=ch)[..., 0]
     z = ch.get("Z")
     if z is not None:
         z = np.where(np.isfinite(z), z, np.nan).astype(np.float32)
