@@ -14,6 +14,8 @@ PYCHECK
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install --quiet --upgrade "pip>=24"
 .venv/bin/python -m pip install --quiet -r requirements.txt -c constraints.txt
+# mediapipe without its metadata's dependencies (a second OpenCV, jax, ...): requirements-nodeps.txt
+.venv/bin/python -m pip install --quiet --no-deps -r requirements-nodeps.txt
 .venv/bin/python -m pip install --quiet --no-deps --no-build-isolation -e .
 # the wheels the Blender extension zip bundles (scripts/build_extension.py; the install test uses them)
 PIP=.venv/bin/pip scripts/fetch_wheels.sh >/dev/null \
@@ -29,4 +31,4 @@ if ! command -v espeak-ng >/dev/null 2>&1; then
     echo "rvr-laaf: espeak-ng is missing; for 'sintel_eval generate --script conversation' run: sudo apt-get install espeak-ng" >&2
   fi
 fi
-.venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"
+.venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg, mediapipe; cv2.ximgproc; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"
