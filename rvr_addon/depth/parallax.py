@@ -1,0 +1,597 @@
+"""Depth from the camera's own motion (parallax): the ``parallax`` cue of the depth system.
+
+Per frame t, at an analysis size (long side ``analysis_long_side`` px):
+
+1. **Tracks.** Corners (Shi-Tomasi) tracked frame to frame with pyramidal Lucas-Kanade and a
+   forward-backward check give sparse correspondences between t and every frame of the window
+   t-W..t+W (W = ``window``) at almost no cost.
+2. **Neighbour choice.** For each candidate t+k a homography is fitted to the tracks (RANSAC):
+   a homography explains a rotating camera (or a plane) exactly, so the residual it leaves, in
+   px, measures the parallax the pair holds. Per side (behind, ahead) the nearest candidate
+   whose residual reaches ``target_parallax_px`` is chosen (else the one with the most, if at
+   least ``min_parallax_px``), up to ``per_side`` per side.
+3. **Pair geometry.** Dense DIS flow both ways (:mod:`rvr_addon.temporal.flow`, cached per pair
+   while both frames are in the window); the relative pose from flow correspondences sampled on
+   a grid where the flow is forward-backward consistent (``cv2.findEssentialMat`` with RANSAC,
+   refined on its inliers, ``cv2.recoverPose``). A pair whose dense median parallax after
+   de-rotation stays under MIN_DENSE_PARALLAX_PX is dropped.
+4. **Triangulation.** Per pixel, the depth along t's ray that best meets the flow's ray in the
+   neighbour (linear least squares, vectorised over pixels), with a confidence: forward-backward
+   flow agreement, triangulation angle (px of de-rotated parallax), distance to the epipolar
+   line (independent motion: people walking, cars) and positive depth in both views.
+5. **Fusion.** The neighbours' maps are brought to one scale (median ratio) and fused by a
+   confidence-weighted mean of the values that agree with their median; neighbours that
+   disagree (an object moving along the epipolar line) lower the confidence.
+6. **One scale per clip.** Two views give depth up to the pair's baseline. The chain fixes
+   it: a behind neighbour n was already output in the clip's scale, and the same pair
+   triangulated in n's view must match n's map, so their median ratio gives the pair's baseline
+   in the clip's unit. The first frame (or one after a stretch without parallax: info
+   ``scale_reset``) sets the unit: median inverse depth 1 on its trusted pixels.
+
+Output per frame: ``CueMap(name="parallax", metric=False, shift_free=True)`` at the frame's
+full size: inverse depth in 1/(clip unit) (bilinear upsampling of inverse depth), NaN where
+unknown, confidence 0..1 (nearest upsampling), info ``{"parallax", "neighbours",
+"median_angle_deg", "scale_reset", "reason"}``. A frame without parallax (still camera,
+rotation only, a plane, no texture) gets an empty cue (all NaN, confidence 0) whose reason says
+why.
+
+Intrinsics: the product does not know K; unless the caller passes one (px of the full frame),
+a pinhole with the principal point at the centre and the focal length of
+:func:`rvr_addon.depth.cues.focal_px` (66 deg horizontal FOV).
+
+Streaming: :meth:`ParallaxEstimator.maps` holds at most 2 W + 1 small gray frames, their
+tracks, the flows of the pairs in use and the W last output maps at analysis size.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Iterable, Iterator
+
+import cv2
+import numpy as np
+
+from rvr_addon.depth.cues import CueMap, focal_px
+from rvr_addon.temporal.flow import DISFlow, fb_error, flow_size, to_flow_gray
+
+NAME = "parallax"
+MAX_CORNERS = 400
+"""Tracked corners per frame (refilled when fewer than 70 % survive)."""
+MIN_TRACKS = 24
+"""Fewest common tracks for a pair to be judged at all."""
+GRID_STEP = 6
+"""Spacing (px at analysis size) of the flow samples the pose is estimated from."""
+FB_SAMPLE_PX = 0.5
+"""Forward-backward error (px) a flow sample may have to enter the pose estimation."""
+E_THRESHOLD_PX = 0.75
+"""RANSAC threshold (px) of the essential matrix."""
+MIN_DENSE_PARALLAX_PX = 1.5
+"""Median de-rotated parallax (px) of a pair's pose inliers under which the pair is dropped."""
+FB_TOL_PX, FB_TOL_RELATIVE = 1.0, 0.05
+"""Forward-backward tolerance of a pixel's flow: px + share of the flow's length."""
+EPI_TOL_PX = 1.5
+"""Tolerated distance (px) of the flow's end point from the epipolar line (more: independent
+motion or a flow error)."""
+ANGLE_MIN_PX, ANGLE_FULL_PX = 1.0, 3.0
+"""Triangulation angle, as px of de-rotated parallax at analysis size, under which a pixel is
+not trusted at all / from which it is fully trusted."""
+
+
+@dataclass
+class _Frame:
+    """One frame in the window: analysis gray, its tracks, and once output its map."""
+
+    index: int
+    gray: np.ndarray
+    full_size: tuple[int, int]  # (W, H) of the input frame
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    pts: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    motion_px: float = 0.0  # median track motion from the previous frame (px)
+    q: np.ndarray | None = None  # output inverse depth (clip unit) at analysis size
+    conf: np.ndarray | None = None
+    epoch: int = -1  # the scale chain the output map belongs to
+
+
+@dataclass
+class _Pair:
+    """Dense geometry of the pair (a, b): flows, fb error, pose x_b = R x_a + T (|T| = 1)."""
+
+    f_ab: np.ndarray
+    f_ba: np.ndarray
+    fb_a: np.ndarray
+    fb_b: np.ndarray
+    R: np.ndarray | None = None
+    T: np.ndarray | None = None
+    parallax_px: float = 0.0
+    inlier_ratio: float = 0.0
+
+
+def _empty(full_size: tuple[int, int], reason: str, **info) -> CueMap:
+    w, h = full_size
+    nan = np.full((h, w), np.nan, np.float32)
+    return CueMap(NAME, nan, np.zeros((h, w), np.float32), metric=False, shift_free=True,
+                  info={"parallax": False, "neighbours": [], "reason": reason, **info})
+
+
+def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
+    """(w, h) of the analysis size: the frame shrunk so its long side is at most ``long_side``
+    px (tiny frames are enlarged to DIS's minimum, see :func:`temporal.flow.flow_size`)."""
+    return flow_size(width, height, long_side)
+
+
+def default_K(width: int, height: int) -> np.ndarray:
+    """(3, 3) pinhole intrinsics in px for a ``width`` x ``height`` frame: principal point at
+    the centre, focal length :func:`cues.focal_px` (66 deg horizontal FOV)."""
+    f = focal_px(width)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def scale_K(K: np.ndarray, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """Intrinsics of the full frame (px, ``full_size`` = (W, H)) at another size (w, h)
+    (pixel centres at integer coordinates)."""
+    sx, sy = size[0] / full_size[0], size[1] / full_size[1]
+    K2 = np.array(K, np.float64).copy()
+    K2[0, 0] *= sx
+    K2[0, 1] *= sx
+    K2[1, 1] *= sy
+    K2[0, 2] = (K2[0, 2] + 0.5) * sx - 0.5
+    K2[1, 2] = (K2[1, 2] + 0.5) * sy - 0.5
+    return K2
+
+
+# ------------------------------------------------------------------------------ geometry
+
+
+def rays(h: int, w: int, K: np.ndarray) -> np.ndarray:
+    """(3, h*w) float32 normalised rays K^-1 (x, y, 1) of every pixel (row-major)."""
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return _normalise(K, xs.ravel(), ys.ravel())
+
+
+def _normalise(K: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    fx, fy, cx, cy, s = K[0, 0], K[1, 1], K[0, 2], K[1, 2], K[0, 1]
+    yn = (y - cy) / fy
+    xn = (x - cx - s * yn) / fx
+    return np.stack([xn, yn, np.ones_like(xn)]).astype(np.float32)
+
+
+def triangulate(flow: np.ndarray, K: np.ndarray, R: np.ndarray, T: np.ndarray,
+                step: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Depth of every pixel of view a from the flow a->b and the pose ``x_b = R x_a + T``.
+
+    flow: (h, w, 2) px; K: (3, 3) px at that size; step: take every step-th pixel per axis.
+    Returns (inverse depth (1/unit of |T|), triangulation angle (rad), epipolar distance of the
+    flow's end point (px), in front of both cameras (bool)), each (h', w'). The depth along a's
+    ray minimises the algebraic distance of its image in b to the flow's end point
+    ``z (x_b x R x_a) + x_b x T = 0`` in least squares.
+    """
+    fl = flow[::step, ::step]
+    h, w = fl.shape[:2]
+    ys, xs = np.mgrid[0:flow.shape[0]:step, 0:flow.shape[1]:step].astype(np.float32)
+    a = _normalise(K, xs.ravel(), ys.ravel())
+    b = _normalise(K, (xs + fl[..., 0]).ravel(), (ys + fl[..., 1]).ravel())
+    Ra = (R.astype(np.float32) @ a)
+    Tf = T.astype(np.float32).reshape(3, 1)
+    c1 = np.cross(b, Ra, axis=0)
+    c2 = np.cross(b, Tf, axis=0)
+    den = np.sum(c1 * c1, axis=0)
+    num = -np.sum(c1 * c2, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = num / den
+        q = 1.0 / z
+        z2 = z * Ra[2] + Tf[2, 0]
+        cosang = np.sum(Ra * b, axis=0) / np.sqrt(np.sum(Ra * Ra, axis=0) * np.sum(b * b, axis=0))
+        ang = np.arccos(np.clip(cosang, -1.0, 1.0))
+        # epipolar line of a in b (normalised coords): l = [T]x R a; distance in px (focal-scaled)
+        line = np.cross(np.broadcast_to(Tf, Ra.shape), Ra, axis=0)
+        f = np.float32(0.5 * (K[0, 0] + K[1, 1]))
+        epi = np.abs(np.sum(line * b, axis=0)) / np.sqrt(line[0] ** 2 + line[1] ** 2) * f
+    front = (z > 0) & (z2 > 0) & np.isfinite(q)
+    return (q.reshape(h, w).astype(np.float32), ang.reshape(h, w).astype(np.float32),
+            epi.reshape(h, w).astype(np.float32), front.reshape(h, w))
+
+
+def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
+                   step: int = GRID_STEP) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """Relative pose ``x_b = R x_a + T`` (|T| = 1) from dense flow samples on a grid.
+
+    Samples: every ``step`` px where the forward-backward error ``fb_a`` is under FB_SAMPLE_PX
+    and the end point lies inside. Essential matrix by RANSAC (threshold E_THRESHOLD_PX),
+    re-estimated on its inliers (LMedS), decomposed by ``cv2.recoverPose``. Returns (R, T,
+    median de-rotated parallax of the inliers in px, inlier ratio) or None (too few samples,
+    degenerate)."""
+    h, w = f_ab.shape[:2]
+    ys, xs = np.mgrid[step // 2:h:step, step // 2:w:step]
+    fx, fy, e = f_ab[ys, xs, 0], f_ab[ys, xs, 1], fb_a[ys, xs]
+    x2, y2 = xs + fx, ys + fy
+    ok = (e < FB_SAMPLE_PX) & (x2 >= 0) & (x2 <= w - 1) & (y2 >= 0) & (y2 <= h - 1)
+    if ok.sum() < MIN_TRACKS * 2:
+        return None
+    p1 = np.stack([xs[ok], ys[ok]], 1).astype(np.float64)
+    p2 = np.stack([x2[ok], y2[ok]], 1).astype(np.float64)
+    try:
+        E, mask = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.999, threshold=E_THRESHOLD_PX)
+        if E is None or E.shape != (3, 3):
+            return None
+        inl = mask.ravel().astype(bool)
+        if inl.sum() < MIN_TRACKS:
+            return None
+        E2, mask2 = cv2.findEssentialMat(p1[inl], p2[inl], K, method=cv2.LMEDS, prob=0.999)
+        if E2 is not None and E2.shape == (3, 3):
+            E = E2
+        _, R, T, pmask = cv2.recoverPose(E, p1, p2, K, mask=inl.astype(np.uint8)[:, None].copy())
+    except cv2.error:
+        return None
+    inl = pmask.ravel() > 0
+    if inl.sum() < MIN_TRACKS:
+        return None
+    T = T.ravel() / max(np.linalg.norm(T), 1e-12)
+    # de-rotated parallax: where R alone would send the ray vs where the flow sends it (px)
+    a = _normalise(K, p1[inl, 0], p1[inl, 1]).astype(np.float64)
+    Ra = R @ a
+    u = K[0, 0] * Ra[0] / Ra[2] + K[0, 2]
+    v = K[1, 1] * Ra[1] / Ra[2] + K[1, 2]
+    par = np.hypot(u - p2[inl, 0], v - p2[inl, 1])
+    return R, T, float(np.median(par)), float(inl.mean())
+
+
+def homography_parallax(p1: np.ndarray, p2: np.ndarray) -> float:
+    """Parallax a pair holds (px): the 75th percentile of the residuals a RANSAC homography
+    leaves on the correspondences (a rotating camera or a plane leaves only noise)."""
+    if len(p1) < MIN_TRACKS:
+        return 0.0
+    try:
+        H, _ = cv2.findHomography(p1, p2, cv2.RANSAC, 1.0)
+    except cv2.error:
+        return 0.0
+    if H is None:
+        return 0.0
+    pr = cv2.perspectiveTransform(p1.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+    return float(np.percentile(np.hypot(*(pr - p2).T), 75))
+
+
+# ------------------------------------------------------------------------------ helpers
+
+
+def _soft(x: np.ndarray, tol: np.ndarray | float) -> np.ndarray:
+    """1 up to half the tolerance, 0 beyond 1.5 tolerances, linear between."""
+    return np.clip(1.5 - x / tol, 0.0, 1.0)
+
+
+def _median_stack(values: np.ndarray) -> np.ndarray:
+    """Median over axis 0 of a small (k, N) stack with NaNs (NaN where all are NaN)."""
+    k = values.shape[0]
+    if k == 1:
+        return values[0]
+    s = np.sort(values, axis=0)  # NaNs last
+    n = np.sum(np.isfinite(values), axis=0)
+    lo = np.clip((n - 1) // 2, 0, k - 1)
+    hi = np.clip(n // 2, 0, k - 1)
+    m = 0.5 * (np.take_along_axis(s, lo[None], 0)[0] + np.take_along_axis(s, hi[None], 0)[0])
+    m[n == 0] = np.nan
+    return m
+
+
+def _median_ratio(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
+    """Median of a / b over ``mask`` where both are finite and positive (None: < 50 pixels)."""
+    ok = mask & np.isfinite(a) & np.isfinite(b) & (a > 0) & (b > 0)
+    if ok.sum() < 50:
+        return None
+    return float(np.exp(np.median(np.log(a[ok]) - np.log(b[ok]))))
+
+
+def upsample(q: np.ndarray, conf: np.ndarray, full_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse depth and confidence from analysis size to ``full_size`` = (W, H): inverse depth
+    bilinear over the known pixels (normalised convolution), confidence nearest; NaN and 0
+    where either says nothing."""
+    if (q.shape[1], q.shape[0]) == tuple(full_size):
+        out_q, out_c = q.copy(), conf.copy()
+    else:
+        known = (conf > 0) & np.isfinite(q)
+        num = cv2.resize(np.where(known, q, 0).astype(np.float32), full_size, interpolation=cv2.INTER_LINEAR)
+        den = cv2.resize(known.astype(np.float32), full_size, interpolation=cv2.INTER_LINEAR)
+        out_c = cv2.resize(conf.astype(np.float32), full_size, interpolation=cv2.INTER_NEAREST)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out_q = num / den
+        out_q[den < 1e-3] = np.nan
+    bad = ~np.isfinite(out_q) | (out_c <= 0)
+    out_q[bad] = np.nan
+    out_c[bad] = 0.0
+    return out_q.astype(np.float32), np.clip(out_c, 0, 1).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------ the estimator
+
+
+class ParallaxEstimator:
+    """Streaming parallax cue (module docstring).
+
+    analysis_long_side: px of the analysis size's long side; window: W, frames looked at
+    behind and ahead; K: (3, 3) intrinsics in px of the full frames (None: :func:`default_K`);
+    per_side: neighbours chosen behind and ahead (1-2); target_parallax_px /
+    min_parallax_px: the homography residual (px at analysis size) a neighbour should reach /
+    must reach; preset: DIS preset.
+    """
+
+    def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
+                 per_side: int = 1, target_parallax_px: float = 0.75, min_parallax_px: float = 0.3,
+                 preset: str = "medium") -> None:
+        if window < 1:
+            raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
+        self.analysis_long_side = int(analysis_long_side)
+        self.window = int(window)
+        self.K = None if K is None else np.asarray(K, np.float64)
+        self.per_side = int(per_side)
+        self.target_parallax_px = float(target_parallax_px)
+        self.min_parallax_px = float(min_parallax_px)
+        self.preset = preset
+
+    # ---------------------------------------------------------------- public API
+
+    def maps(self, frames: Iterable[np.ndarray]) -> Iterator[CueMap]:
+        """One :class:`CueMap` per input frame ((H, W, 3) uint8 RGB), in order; frame t is
+        yielded once frame t + window has been read (or the clip ended)."""
+        run = _Run(self)
+        buf: list[_Frame] = []
+        for i, frame in enumerate(frames):
+            buf.append(run.add(i, frame, buf[-1] if buf else None))
+            centre = len(buf) - 1 - self.window
+            if centre >= 0:
+                yield run.output(buf, centre)
+                if centre >= self.window:
+                    run.forget(buf.pop(0).index)
+        start = max(len(buf) - self.window, 0)
+        for c in range(start, len(buf)):
+            yield run.output(buf, c)
+
+    def camera_translates(self, frames: Iterable[np.ndarray], max_frames: int = 60) -> tuple[bool, str]:
+        """Cheap clip-level check from the tracks alone (no dense flow): does the camera move
+        with enough baseline for parallax anywhere in the first ``max_frames`` frames?
+        Returns (translates, reason)."""
+        run = _Run(self)
+        buf: list[_Frame] = []
+        best, moved, texture = 0.0, 0.0, False
+        for i, frame in enumerate(frames):
+            if i >= max_frames:
+                break
+            buf.append(run.add(i, frame, buf[-1] if buf else None))
+            buf = buf[-(self.window + 1):]
+            texture |= len(buf[-1].ids) >= MIN_TRACKS
+            moved = max(moved, buf[-1].motion_px)
+            if len(buf) > 1:
+                best = max(best, run.track_parallax(buf[0], buf[-1]))
+            if best >= self.target_parallax_px:
+                break
+        if not buf:
+            return False, "empty clip"
+        if len(buf) == 1 and i == 0:
+            return False, "one frame: no second view"
+        ok, reason = _judge(best, moved, texture, self.min_parallax_px)
+        return ok, (f"parallax {best:.1f} px" if ok else reason)
+
+
+def _judge(parallax: float, moved: float, texture: bool, min_px: float) -> tuple[bool, str]:
+    if not texture:
+        return False, "no texture to track (flat or dark frames)"
+    if parallax >= min_px:
+        return True, "parallax"
+    if moved < 0.3:
+        return False, "still camera"
+    return False, "rotation only or a planar scene: no baseline"
+
+
+class _Run:
+    """The state of one pass over a clip (tracks, flows, output maps): never shared."""
+
+    def __init__(self, est: ParallaxEstimator) -> None:
+        self.est = est
+        self.dis = DISFlow(est.preset)
+        self.size: tuple[int, int] | None = None
+        self.K: np.ndarray | None = None
+        self.next_id = 0
+        self.pairs: OrderedDict[tuple[int, int], _Pair | None] = OrderedDict()
+        self.epoch = 0  # the current scale chain (a new one starts where the scale is reset)
+
+    # ---------------------------------------------------------------- per input frame
+
+    def add(self, i: int, frame: np.ndarray, prev: _Frame | None) -> _Frame:
+        if frame.ndim != 3 or frame.shape[2] != 3:
+            raise ValueError(f"parallax: frame {i} must be (H, W, 3) RGB, got {frame.shape}")
+        full = (int(frame.shape[1]), int(frame.shape[0]))
+        if self.size is None:
+            self.full = full
+            self.size = analysis_size(full[0], full[1], self.est.analysis_long_side)
+            K = default_K(*full) if self.est.K is None else self.est.K
+            self.K = scale_K(K, full, self.size)
+        elif full != self.full:
+            raise ValueError(f"parallax: frame {i} is {full[0]}x{full[1]} but the clip's first frame is "
+                             f"{self.full[0]}x{self.full[1]}; a clip keeps one resolution")
+        fr = _Frame(i, to_flow_gray(frame, self.size), full)
+        self._track(prev, fr)
+        return fr
+
+    def _track(self, prev: _Frame | None, fr: _Frame) -> None:
+        ids, pts = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
+        if prev is not None and len(prev.ids):
+            p0 = prev.pts.reshape(-1, 1, 2)
+            lk = dict(winSize=(21, 21), maxLevel=3,
+                      criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(prev.gray, fr.gray, p0, None, **lk)
+            pb, st2, _ = cv2.calcOpticalFlowPyrLK(fr.gray, prev.gray, p1, None, **lk)
+            h, w = fr.gray.shape
+            p1 = p1.reshape(-1, 2)
+            good = ((st.ravel() == 1) & (st2.ravel() == 1) & (np.hypot(*(pb.reshape(-1, 2) - prev.pts).T) < 0.7)
+                    & (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1))
+            ids, pts = prev.ids[good], p1[good].astype(np.float32)
+            if good.any():
+                fr.motion_px = float(np.median(np.hypot(*(pts - prev.pts[good]).T)))
+        if len(ids) < 0.7 * MAX_CORNERS:
+            mask = np.full(fr.gray.shape, 255, np.uint8)
+            for x, y in pts.astype(int):
+                cv2.circle(mask, (int(x), int(y)), 7, 0, -1)
+            new = cv2.goodFeaturesToTrack(fr.gray, MAX_CORNERS - len(ids), 0.01, 7, mask=mask, blockSize=5)
+            if new is not None and len(new):
+                new = new.reshape(-1, 2).astype(np.float32)
+                ids = np.concatenate([ids, np.arange(self.next_id, self.next_id + len(new))])
+                pts = np.concatenate([pts, new])
+                self.next_id += len(new)
+        fr.ids, fr.pts = ids, pts
+
+    def forget(self, index: int) -> None:
+        for key in [k for k in self.pairs if index in k]:
+            del self.pairs[key]
+
+    # ---------------------------------------------------------------- pairs
+
+    def track_parallax(self, a: _Frame, b: _Frame) -> float:
+        _, ia, ib = np.intersect1d(a.ids, b.ids, assume_unique=True, return_indices=True)
+        if len(ia) < MIN_TRACKS:
+            return 0.0
+        return homography_parallax(a.pts[ia].astype(np.float64), b.pts[ib].astype(np.float64))
+
+    def pair(self, a: _Frame, b: _Frame) -> _Pair | None:
+        """Dense geometry of (a, b) (cached; the reverse pair reuses the flows)."""
+        key = (a.index, b.index)
+        if key in self.pairs:
+            return self.pairs[key]
+        rev = self.pairs.get((b.index, a.index))
+        if rev is not None:
+            f_ab, f_ba, fb_a, fb_b = rev.f_ba, rev.f_ab, rev.fb_b, rev.fb_a
+        else:
+            f_ab = self.dis(a.gray, b.gray)
+            f_ba = self.dis(b.gray, a.gray)
+            fb_a, fb_b = fb_error(f_ab, f_ba), fb_error(f_ba, f_ab)
+        p = _Pair(f_ab, f_ba, fb_a, fb_b)
+        if rev is not None and rev.R is not None:
+            p.R = rev.R.T
+            p.T = -rev.R.T @ rev.T
+            p.parallax_px, p.inlier_ratio = rev.parallax_px, rev.inlier_ratio
+        else:
+            pose = pose_from_flow(f_ab, fb_a, self.K)
+            if pose is not None:
+                p.R, p.T, p.parallax_px, p.inlier_ratio = pose
+        self.pairs[key] = p
+        return p
+
+    def _pair_map(self, a: _Frame, p: _Pair, step: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw inverse depth (1/|T|), confidence and angle of pair p in view a."""
+        q, ang, epi, front = triangulate(p.f_ab, self.K, p.R, p.T, step)
+        fb = p.fb_a[::step, ::step]
+        fl = p.f_ab[::step, ::step]
+        mag = np.sqrt(fl[..., 0] ** 2 + fl[..., 1] ** 2)
+        par_px = ang * np.float32(self.K[0, 0])
+        c = (_soft(fb, FB_TOL_PX + FB_TOL_RELATIVE * mag) * _soft(epi, EPI_TOL_PX)
+             * np.clip((par_px - ANGLE_MIN_PX) / (ANGLE_FULL_PX - ANGLE_MIN_PX), 0, 1))
+        h, w = p.f_ab.shape[:2]
+        ys, xs = np.mgrid[0:h:step, 0:w:step]
+        x2, y2 = xs + p.f_ab[::step, ::step, 0], ys + p.f_ab[::step, ::step, 1]
+        inside = (x2 >= 0) & (x2 <= w - 1) & (y2 >= 0) & (y2 <= h - 1)
+        c = np.where(front & inside & (q > 0), c, 0).astype(np.float32)
+        q = np.where(c > 0, q, np.nan).astype(np.float32)
+        return q, c, ang
+
+    # ---------------------------------------------------------------- per output frame
+
+    def _choose(self, buf: list[_Frame], c: int) -> tuple[list[tuple[int, float]], float]:
+        t = buf[c]
+        chosen: list[tuple[int, float]] = []
+        best = 0.0
+        for side in (-1, 1):
+            scored = []
+            for k in range(1, self.est.window + 1):
+                j = c + side * k
+                if not 0 <= j < len(buf):
+                    break
+                s = self.track_parallax(t, buf[j])
+                best = max(best, s)
+                if s >= self.est.min_parallax_px:
+                    scored.append((j, s))
+                if s >= self.est.target_parallax_px and len(
+                        [x for x in scored if x[1] >= self.est.target_parallax_px]) >= self.est.per_side:
+                    break
+            good = [x for x in scored if x[1] >= self.est.target_parallax_px]
+            pick = good[:self.est.per_side] if good else sorted(scored, key=lambda x: -x[1])[:self.est.per_side]
+            chosen += pick
+        return chosen, best
+
+    def output(self, buf: list[_Frame], c: int) -> CueMap:
+        t = buf[c]
+        if len(buf) < 2:
+            return _empty(t.full_size, "one frame: no second view")
+        chosen, best = self._choose(buf, c)
+        texture = len(t.ids) >= MIN_TRACKS
+        moved = max(f.motion_px for f in buf)
+        if not chosen:
+            return _empty(t.full_size, _judge(best, moved, texture, self.est.min_parallax_px)[1],
+                          track_parallax_px=round(best, 2))
+        maps = []  # (j, q_raw, conf, angle, pair)
+        for j, _ in chosen:
+            p = self.pair(t, buf[j])
+            if p is None or p.R is None or p.parallax_px < MIN_DENSE_PARALLAX_PX:
+                continue
+            q, conf, ang = self._pair_map(t, p)
+            if (conf > 0.5).sum() < 100:
+                continue
+            maps.append((j, q, conf, ang, p))
+        if not maps:
+            return _empty(t.full_size, "flow or pose failed on every neighbour (no rigid parallax)",
+                          track_parallax_px=round(best, 2))
+        # scale: anchor on a neighbour already output in the clip's unit
+        scales: dict[int, float] = {}
+        for j, q, conf, ang, p in maps:
+            n = buf[j]
+            if n.q is None or n.epoch != self.epoch:
+                continue
+            back = self.pair(n, t)
+            if back is None or back.R is None:
+                continue
+            qn, cn, _ = self._pair_map(n, back, step=2)
+            r = _median_ratio(qn, n.q[::2, ::2], (cn > 0.5) & (n.conf[::2, ::2] > 0.5))
+            if r is not None:
+                scales[j] = r
+        ref = max(maps, key=lambda m: (m[0] in scales, float((m[2] > 0.5).sum())))
+        if ref[0] in scales:
+            unit, reset = scales[ref[0]], False
+        else:
+            med = float(np.nanmedian(ref[1][ref[2] > 0.5]))
+            unit, reset = med, True
+            self.epoch += 1
+        qs, cs = [], []
+        for j, q, conf, ang, p in maps:
+            if j == ref[0]:
+                r = unit
+            elif j in scales:
+                r = scales[j]
+            else:
+                r = _median_ratio(q, ref[1], (conf > 0.5) & (ref[2] > 0.5))
+                r = None if r is None else r * unit
+            if r is None:
+                continue
+            qs.append(q / np.float32(r))
+            cs.append(conf)
+        Q, C = np.stack(qs), np.stack(cs)
+        if len(qs) == 1:
+            q_out, c_out = Q[0], C[0] * np.float32(0.9)
+        else:
+            h, w = Q.shape[1:]
+            m = _median_stack(Q.reshape(len(qs), -1)).reshape(h, w)
+            with np.errstate(invalid="ignore"):
+                agree = np.exp(-((Q / m[None] - 1.0) / 0.1) ** 2)
+            W = np.where(np.isfinite(Q), C * agree, 0).astype(np.float32)
+            sw = W.sum(0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q_out = np.where(np.isfinite(Q), Q, 0).__mul__(W).sum(0) / sw
+            n_valid = np.isfinite(Q).sum(0)
+            # agreeing neighbours add up (probabilistic or); one alone keeps 0.9 of its own
+            c_or = 1.0 - np.prod(1.0 - np.clip(W, 0, 1), axis=0)
+            c_out = np.where(n_valid >= 2, c_or, 0.9 * W.max(0)).astype(np.float32)
+            q_out = np.where(sw > 1e-6, q_out, np.nan).astype(np.float32)
+        c_out = np.where(np.isfinite(q_out), c_out, 0).astype(np.float32)
+        t.q, t.conf, t.epoch = q_out, c_out, self.epoch
+        ang_all = np.concatenate([a[3][a[2] > 0.5] for a in maps])
+        info = {"parallax": True, "neighbours": [int(buf[j].index - t.index) for j, *_ in maps],
+                "median_angle_deg": round(float(np.degrees(np.median(ang_all))) if ang_all.size else 0.0, 4),
+                "pair_parallax_px": [round(m[4].parallax_px, 2) for m in maps],
+                "scale_reset": reset, "reason": "parallax"}
+        q_full, c_full = upsample(q_out, c_out, t.full_size)
+        return CueMap(NAME, q_full, c_full, metric=False, shift_free=True, info=info)
