@@ -3,6 +3,12 @@
 # not ship: numpy it does) into ./wheels, for Linux x86_64 and Blender's Python 3.11.
 # blender_manifest.toml lists exactly these files; change both together.
 #
+# mediapipe 0.10.14 (the people depth cue, rvr_addon/depth/people.py) is fetched into
+# wheels/upstream/ and repacked by scripts/slim_wheel.py into wheels/ without the models the cue
+# never loads (35.7 -> 14.2 MB, build tag 1); its dependencies absl-py, attrs, flatbuffers and
+# protobuf 4.25.9 are bundled as they are (matplotlib, jax, sounddevice and opencv-contrib-python,
+# which its metadata also names, are not: the cue does not need them).
+#
 # OpenEXR 3.5.3 and imageio-ffmpeg 0.8.1 publish only manylinux_2_28 wheels (glibc >= 2.28, as
 # Blender 4.2+ itself needs), opencv only manylinux2014: pip is given both platform tags.
 #
@@ -32,13 +38,22 @@ mkdir -p wheels
 download() {  # pinned requirements -> ./wheels, binary Linux x86_64 CPython 3.11 wheels only
     "$PIP" download --only-binary=:all: --no-deps --python-version 3.11 \
         --platform manylinux2014_x86_64 --platform manylinux_2_28_x86_64 \
-        -d wheels "$@"
+        -d "${WHEEL_DEST:-wheels}" "$@"
 }
 download \
     opencv-contrib-python-headless==4.11.0.86 \
     OpenEXR==3.5.3 \
     imageio-ffmpeg==0.8.1 \
-    tqdm==4.70.1
+    tqdm==4.70.1 \
+    absl-py==2.5.1 \
+    attrs==26.1.0 \
+    flatbuffers==25.12.19 \
+    protobuf==4.25.9
+MEDIAPIPE=mediapipe-0.10.14-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl
+if [ ! -f "wheels/${MEDIAPIPE/-cp311-/-1-cp311-}" ]; then
+    [ -f "wheels/upstream/$MEDIAPIPE" ] || WHEEL_DEST=wheels/upstream download mediapipe==0.10.14
+    "${PYTHON:-python3}" scripts/slim_wheel.py "wheels/upstream/$MEDIAPIPE" wheels >/dev/null
+fi
 
 # every wheel the manifest names must now be in ./wheels
 missing=0

@@ -93,3 +93,57 @@ def test_default_build_packs_only_the_listed_wheels(tmp_path):
     root = fake_source(tmp_path)  # ./wheels also holds the torch wheels, as after fetch_wheels.sh --with-torch
     with zipfile.ZipFile(build_extension.build(tmp_path / "dist", root)) as z:
         assert sorted(n for n in z.namelist() if n.startswith("wheels/")) == sorted(w[2:] for w in light())
+
+
+def fake_wheel(path: Path) -> Path:
+    """A small wheel shaped like mediapipe's: modules with kept and dropped models, a dist-info."""
+    import base64
+    import hashlib
+
+    files = {"mediapipe/__init__.py": b"x = 1\n",
+             "mediapipe/modules/face_detection/face_detection_full_range_sparse.tflite": b"keep" * 100,
+             "mediapipe/modules/face_detection/face_detection_full_range_cpu.binarypb": b"graph",
+             "mediapipe/modules/pose_landmark/pose_landmark_full.tflite": b"drop" * 1000,
+             "mediapipe/modules/hand_landmark/hand_landmark_full.tflite": b"drop" * 1000,
+             "mediapipe-0.10.14.dist-info/METADATA": b"Name: mediapipe\nVersion: 0.10.14\n",
+             "mediapipe-0.10.14.dist-info/WHEEL": b"Wheel-Version: 1.0\nRoot-Is-Purelib: false\n"}
+    record = "".join(f"{n},sha256={base64.urlsafe_b64encode(hashlib.sha256(d).digest()).rstrip(b'=').decode()},{len(d)}\n"
+                     for n, d in files.items()) + "mediapipe-0.10.14.dist-info/RECORD,,\n"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in files.items():
+            z.writestr(name, data)
+        z.writestr("mediapipe-0.10.14.dist-info/RECORD", record)
+    return path
+
+
+def test_slim_mediapipe_wheel(tmp_path):
+    """scripts/slim_wheel.py drops the unused models, keeps everything else, writes a RECORD that
+    matches what it holds, tags build 1, and gives the same bytes twice (the manifest's name)."""
+    import base64
+    import csv
+    import hashlib
+    import io
+
+    import slim_wheel
+
+    upstream = "mediapipe-0.10.14-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl"
+    assert "./wheels/" + slim_wheel.slim_name(upstream) in light()
+    src = fake_wheel(tmp_path / upstream)
+    (tmp_path / "a").mkdir()
+    out = slim_wheel.slim(src, tmp_path / "a")
+    assert out.name == slim_wheel.slim_name(upstream)
+    with zipfile.ZipFile(out) as z:
+        names = set(z.namelist())
+        assert "mediapipe/modules/face_detection/face_detection_full_range_sparse.tflite" in names
+        assert "mediapipe/modules/face_detection/face_detection_full_range_cpu.binarypb" in names
+        assert not any("pose_landmark_full" in n or "hand_landmark" in n for n in names)
+        assert "Build: 1" in z.read("mediapipe-0.10.14.dist-info/WHEEL").decode()
+        rows = list(csv.reader(io.StringIO(z.read("mediapipe-0.10.14.dist-info/RECORD").decode())))
+        assert {r[0] for r in rows} == names
+        for name, digest, size in rows:
+            if digest:
+                data = z.read(name)
+                assert digest == "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+                assert int(size) == len(data)
+    (tmp_path / "b").mkdir()
+    assert slim_wheel.slim(src, tmp_path / "b").read_bytes() == out.read_bytes()

@@ -1,11 +1,12 @@
 """The extension zip (scripts/build_extension.py) installed through Blender's own extension
 installer into a temporary user directory, enabled, and used end to end on a tiny clip:
-Analyze -> Add Focus Target -> Auto Focus -> Render; F-curves and the result strip checked.
+Analyze -> Add Focus Target -> Auto Focus -> Render; F-curves and the result strip checked;
+then the people depth cue from the extension's mediapipe wheel (no matplotlib in Blender).
 
 Runs in a child Python (the bpy module reads its user directories once, at import) that sees
 only what a Blender install ships (bpy, numpy, requests and its helpers, zstandard: links in a
 temporary folder, ``python -S`` without the venv's site-packages), so the extension's own
-wheels must provide OpenCV, OpenEXR, tqdm and imageio-ffmpeg.
+wheels must provide OpenCV, OpenEXR, tqdm, imageio-ffmpeg and mediapipe.
 Needs the wheels (scripts/fetch_wheels.sh); skipped with that advice when they are missing.
 """
 from __future__ import annotations
@@ -16,11 +17,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("bpy")
 
 ROOT = Path(__file__).resolve().parents[2]
+INTERVIEW = ROOT.parent / "shared" / "data" / "clips" / "visualvoice_interview.mp4"
 sys.path.insert(0, str(ROOT / "scripts"))
 import build_extension  # noqa: E402
 
@@ -60,6 +63,15 @@ result["result_strip"] = {"type": out.type, "channel": out.channel, "start": out
                           "end": out.frame_final_end, "file": bpy.path.abspath(out.filepath)}
 result["nfts"] = [(n.frame, n.source, n.keep) for n in strip.rvr.nfts]
 result["cv2"] = sys.modules["cv2"].__file__
+import importlib
+import numpy as np
+people = importlib.import_module(pkg + ".rvr_addon.depth.people")
+frame = np.load(sys.argv[5]) if sys.argv[5] else np.zeros((72, 128, 3), np.uint8)
+with people.PeopleDetector() as detector:
+    found = detector(frame)
+result["people"] = [(round(p.distance_m, 3), p.mouth_open is not None) for p in found.persons]
+result["mediapipe"] = sys.modules["mediapipe"].__file__
+result["matplotlib"] = "matplotlib" in sys.modules
 print("RESULT " + json.dumps(result))
 '''
 
@@ -94,7 +106,14 @@ def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
            "PYTHONPATH": str(blender_like_site(tmp_path / "blender_site")), "PYTHONNOUSERSITE": "1"}
     work = tmp_path / "work"
     work.mkdir()
-    done = subprocess.run([sys.executable, "-S", "-c", SCRIPT, str(zip_path), str(vse_clip), str(vse_depth), str(work)],
+    frame = ""  # the people cue sees the shared interview clip's split screen (two people) when present
+    if INTERVIEW.is_file():
+        from rvr_addon.io.video import iter_frames
+
+        np.save(tmp_path / "frame.npy", next(iter_frames(INTERVIEW, 100, 101)))
+        frame = str(tmp_path / "frame.npy")
+    done = subprocess.run([sys.executable, "-S", "-c", SCRIPT, str(zip_path), str(vse_clip), str(vse_depth), str(work),
+                           frame],
                           capture_output=True, text=True, env=env, cwd=tmp_path, timeout=600)
     lines = [ln for ln in done.stdout.splitlines() if ln.startswith("RESULT ")]
     assert done.returncode == 0 and lines, done.stdout[-3000:] + done.stderr[-3000:]
@@ -109,3 +128,8 @@ def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
     s = r["result_strip"]
     assert (s["type"], s["channel"], s["start"], s["end"]) == ("MOVIE", 3, 1, 13)
     assert Path(s["file"]) == work / "renders" / "Clip.mp4" and Path(s["file"]).stat().st_size > 0
+    assert Path(r["mediapipe"]).is_relative_to(user / "extensions") and not r["matplotlib"]
+    if frame:
+        assert len(r["people"]) == 2 and all(0.3 < d < 2.0 and mesh for d, mesh in r["people"])
+    else:
+        assert r["people"] == []
