@@ -6,14 +6,15 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
    forward-backward check give sparse correspondences between t and every frame of the window
    t-W..t+W (W = ``window``) at almost no cost.
 2. **Neighbour choice.** For each candidate t+k a homography is fitted to the tracks (RANSAC):
-   a homography explains a rotating camera (or a plane) exactly, so the residual it leaves, in
-   px, measures the parallax the pair holds. Per side (behind, ahead) the nearest candidate
-   whose residual reaches ``target_parallax_px`` is chosen (else the one with the most, if at
-   least ``min_parallax_px``), up to ``per_side`` per side.
+   a homography explains a rotating camera (or a plane) exactly, so a residual under
+   ``min_parallax_px`` means no baseline. Otherwise the tracks' essential matrix gives the
+   rotation, and the median parallax left after removing it (px) measures the baseline. Per
+   side (behind, ahead) the nearest candidate reaching ``target_parallax_px`` is chosen (else the
+   one with the most), up to ``per_side`` per side.
 3. **Pair geometry.** Dense DIS flow both ways (:mod:`rvr_addon.temporal.flow`, cached per pair
    while both frames are in the window); the relative pose from flow correspondences sampled on
    a grid where the flow is forward-backward consistent (``cv2.findEssentialMat`` with RANSAC,
-   refined on its inliers, ``cv2.recoverPose``). A pair whose dense median parallax after
+   refined on its inliers, ``cv2.decomposeEssentialMat`` + cheirality). A pair whose dense median parallax after
    de-rotation stays under MIN_DENSE_PARALLAX_PX is dropped.
 4. **Triangulation.** Per pixel, the depth along t's ray that best meets the flow's ray in the
    neighbour (linear least squares, vectorised over pixels), with a confidence: forward-backward
@@ -59,8 +60,10 @@ MAX_CORNERS = 400
 """Tracked corners per frame (refilled when fewer than 70 % survive)."""
 MIN_TRACKS = 24
 """Fewest common tracks for a pair to be judged at all."""
-GRID_STEP = 6
-"""Spacing (px at analysis size) of the flow samples the pose is estimated from."""
+POSE_SAMPLES = 1500
+"""About how many flow samples (on a grid) the pose is estimated from."""
+REFINE_SAMPLES = 400
+"""At most this many RANSAC inliers re-estimate the essential matrix (LMedS)."""
 FB_SAMPLE_PX = 0.5
 """Forward-backward error (px) a flow sample may have to enter the pose estimation."""
 E_THRESHOLD_PX = 0.75
@@ -170,37 +173,41 @@ def triangulate(flow: np.ndarray, K: np.ndarray, R: np.ndarray, T: np.ndarray,
     ys, xs = np.mgrid[0:flow.shape[0]:step, 0:flow.shape[1]:step].astype(np.float32)
     a = _normalise(K, xs.ravel(), ys.ravel())
     b = _normalise(K, (xs + fl[..., 0]).ravel(), (ys + fl[..., 1]).ravel())
-    Ra = (R.astype(np.float32) @ a)
-    Tf = T.astype(np.float32).reshape(3, 1)
-    c1 = np.cross(b, Ra, axis=0)
-    c2 = np.cross(b, Tf, axis=0)
-    den = np.sum(c1 * c1, axis=0)
-    num = -np.sum(c1 * c2, axis=0)
+    Ra = R.astype(np.float32) @ a
+    tx, ty, tz = (float(v) for v in T)
+    bx, by, bz = b[0], b[1], b[2]
+    ax, ay, az = Ra[0], Ra[1], Ra[2]
+    # c1 = b x Ra, c2 = b x T
+    c1x, c1y, c1z = by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax
+    c2x, c2y, c2z = by * tz - bz * ty, bz * tx - bx * tz, bx * ty - by * tx
+    den = c1x * c1x + c1y * c1y + c1z * c1z
+    num = -(c1x * c2x + c1y * c2y + c1z * c2z)
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = num / den
-        q = 1.0 / z
-        z2 = z * Ra[2] + Tf[2, 0]
-        cosang = np.sum(Ra * b, axis=0) / np.sqrt(np.sum(Ra * Ra, axis=0) * np.sum(b * b, axis=0))
+        q = den / num  # 1 / z
+        z = 1.0 / q
+        z2 = z * az + np.float32(tz)
+        cosang = (ax * bx + ay * by + az * bz) / np.sqrt((ax * ax + ay * ay + az * az) * (bx * bx + by * by + bz * bz))
         ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-        # epipolar line of a in b (normalised coords): l = [T]x R a; distance in px (focal-scaled)
-        line = np.cross(np.broadcast_to(Tf, Ra.shape), Ra, axis=0)
+        # epipolar line of a in b (normalised coords): l = T x Ra; distance in px (focal-scaled)
+        lx, ly, lz = ty * az - tz * ay, tz * ax - tx * az, tx * ay - ty * ax
         f = np.float32(0.5 * (K[0, 0] + K[1, 1]))
-        epi = np.abs(np.sum(line * b, axis=0)) / np.sqrt(line[0] ** 2 + line[1] ** 2) * f
+        epi = np.abs(lx * bx + ly * by + lz * bz) / np.sqrt(lx * lx + ly * ly) * f
     front = (z > 0) & (z2 > 0) & np.isfinite(q)
     return (q.reshape(h, w).astype(np.float32), ang.reshape(h, w).astype(np.float32),
             epi.reshape(h, w).astype(np.float32), front.reshape(h, w))
 
 
 def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
-                   step: int = GRID_STEP) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+                   samples: int = POSE_SAMPLES) -> tuple[np.ndarray, np.ndarray, float, float] | None:
     """Relative pose ``x_b = R x_a + T`` (|T| = 1) from dense flow samples on a grid.
 
-    Samples: every ``step`` px where the forward-backward error ``fb_a`` is under FB_SAMPLE_PX
+    Samples: about ``samples`` on a grid, where the forward-backward error ``fb_a`` is under FB_SAMPLE_PX
     and the end point lies inside. Essential matrix by RANSAC (threshold E_THRESHOLD_PX),
-    re-estimated on its inliers (LMedS), decomposed by ``cv2.recoverPose``. Returns (R, T,
+    re-estimated on its inliers (LMedS), decomposed. Returns (R, T,
     median de-rotated parallax of the inliers in px, inlier ratio) or None (too few samples,
     degenerate)."""
     h, w = f_ab.shape[:2]
+    step = max(int(np.sqrt(h * w / samples)), 1)
     ys, xs = np.mgrid[step // 2:h:step, step // 2:w:step]
     fx, fy, e = f_ab[ys, xs, 0], f_ab[ys, xs, 1], fb_a[ys, xs]
     x2, y2 = xs + fx, ys + fy
@@ -209,34 +216,73 @@ def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
         return None
     p1 = np.stack([xs[ok], ys[ok]], 1).astype(np.float64)
     p2 = np.stack([x2[ok], y2[ok]], 1).astype(np.float64)
+    return pose_from_points(p1, p2, K, refine=True)
+
+
+def pose_from_points(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, refine: bool = False,
+                     threshold_px: float = E_THRESHOLD_PX) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """Relative pose ``x_b = R x_a + T`` (|T| = 1) from (N, 2) px correspondences: essential
+    matrix by RANSAC, optionally re-estimated on (at most REFINE_SAMPLES of) its inliers by
+    LMedS, decomposed (the solution with most inliers in front of both cameras). Returns (R, T, median de-rotated parallax of the inliers in px,
+    inlier ratio) or None."""
+    if len(p1) < MIN_TRACKS:
+        return None
     try:
-        E, mask = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.999, threshold=E_THRESHOLD_PX)
+        E, mask = cv2.findEssentialMat(p1, p2, K, method=cv2.RANSAC, prob=0.999, threshold=threshold_px)
         if E is None or E.shape != (3, 3):
             return None
         inl = mask.ravel().astype(bool)
         if inl.sum() < MIN_TRACKS:
             return None
-        E2, mask2 = cv2.findEssentialMat(p1[inl], p2[inl], K, method=cv2.LMEDS, prob=0.999)
-        if E2 is not None and E2.shape == (3, 3):
-            E = E2
-        _, R, T, pmask = cv2.recoverPose(E, p1, p2, K, mask=inl.astype(np.uint8)[:, None].copy())
+        if refine:
+            sub = np.flatnonzero(inl)[::max(int(inl.sum()) // REFINE_SAMPLES, 1)]
+            E2, _ = cv2.findEssentialMat(p1[sub], p2[sub], K, method=cv2.LMEDS, prob=0.99)
+            if E2 is not None and E2.shape == (3, 3):
+                E = E2
+        R1, R2, t = cv2.decomposeEssentialMat(E)
     except cv2.error:
         return None
-    inl = pmask.ravel() > 0
-    if inl.sum() < MIN_TRACKS:
+    # the one of the four decompositions that puts the most inliers in front of both cameras
+    # (cv2.recoverPose also drops points beyond 50 baselines: most of a distant scene)
+    a = _normalise(K, p1[inl, 0], p1[inl, 1])
+    b = _normalise(K, p2[inl, 0], p2[inl, 1])
+    best = None
+    for R in (R1, R2):
+        for T in (t.ravel(), -t.ravel()):
+            n = _in_front(a, b, R, T)
+            if best is None or n > best[0]:
+                best = (n, R, T)
+    n, R, T = best
+    if n < MIN_TRACKS:
         return None
-    T = T.ravel() / max(np.linalg.norm(T), 1e-12)
-    # de-rotated parallax: where R alone would send the ray vs where the flow sends it (px)
-    a = _normalise(K, p1[inl, 0], p1[inl, 1]).astype(np.float64)
+    T = T / max(np.linalg.norm(T), 1e-12)
+    return R, T, float(np.median(derotated_parallax(p1[inl], p2[inl], K, R))), float(inl.mean())
+
+
+def _in_front(a: np.ndarray, b: np.ndarray, R: np.ndarray, T: np.ndarray) -> int:
+    """How many ray pairs (3, N) normalised triangulate in front of both cameras."""
+    Ra = R.astype(np.float32) @ a
+    Tf = T.astype(np.float32).reshape(3, 1)
+    c1 = np.cross(b, Ra, axis=0)
+    c2 = np.cross(b, Tf, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = -np.sum(c1 * c2, 0) / np.sum(c1 * c1, 0)
+        z2 = z * Ra[2] + Tf[2, 0]
+    return int(np.sum((z > 0) & (z2 > 0)))
+
+
+def derotated_parallax(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(N,) px between where the rotation alone sends each point of view a and where it is
+    seen in view b: the parallax the translation makes (0 for a rotating camera)."""
+    a = _normalise(K, p1[:, 0], p1[:, 1]).astype(np.float64)
     Ra = R @ a
-    u = K[0, 0] * Ra[0] / Ra[2] + K[0, 2]
+    u = K[0, 0] * Ra[0] / Ra[2] + K[0, 1] * Ra[1] / Ra[2] + K[0, 2]
     v = K[1, 1] * Ra[1] / Ra[2] + K[1, 2]
-    par = np.hypot(u - p2[inl, 0], v - p2[inl, 1])
-    return R, T, float(np.median(par)), float(inl.mean())
+    return np.hypot(u - p2[:, 0], v - p2[:, 1])
 
 
 def homography_parallax(p1: np.ndarray, p2: np.ndarray) -> float:
-    """Parallax a pair holds (px): the 75th percentile of the residuals a RANSAC homography
+    """Parallax a pair holds (px): the 90th percentile of the residuals a RANSAC homography
     leaves on the correspondences (a rotating camera or a plane leaves only noise)."""
     if len(p1) < MIN_TRACKS:
         return 0.0
@@ -247,7 +293,7 @@ def homography_parallax(p1: np.ndarray, p2: np.ndarray) -> float:
     if H is None:
         return 0.0
     pr = cv2.perspectiveTransform(p1.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
-    return float(np.percentile(np.hypot(*(pr - p2).T), 75))
+    return float(np.percentile(np.hypot(*(pr - p2).T), 90))
 
 
 # ------------------------------------------------------------------------------ helpers
@@ -263,6 +309,9 @@ def _median_stack(values: np.ndarray) -> np.ndarray:
     k = values.shape[0]
     if k == 1:
         return values[0]
+    if k == 2:
+        a, b = values
+        return np.where(np.isfinite(a), np.where(np.isfinite(b), 0.5 * (a + b), a), b)
     s = np.sort(values, axis=0)  # NaNs last
     n = np.sum(np.isfinite(values), axis=0)
     lo = np.clip((n - 1) // 2, 0, k - 1)
@@ -308,13 +357,14 @@ class ParallaxEstimator:
 
     analysis_long_side: px of the analysis size's long side; window: W, frames looked at
     behind and ahead; K: (3, 3) intrinsics in px of the full frames (None: :func:`default_K`);
-    per_side: neighbours chosen behind and ahead (1-2); target_parallax_px /
-    min_parallax_px: the homography residual (px at analysis size) a neighbour should reach /
-    must reach; preset: DIS preset.
+    per_side: neighbours chosen behind and ahead (1-2); target_parallax_px: the median
+    de-rotated parallax of the tracks (px at analysis size) a neighbour should reach (the
+    nearest that does is taken, else the one with the most); min_parallax_px: the homography
+    residual (px) under which a pair counts as rotation only / a plane; preset: DIS preset.
     """
 
     def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
-                 per_side: int = 1, target_parallax_px: float = 0.75, min_parallax_px: float = 0.3,
+                 per_side: int = 1, target_parallax_px: float = 5.0, min_parallax_px: float = 0.3,
                  preset: str = "medium") -> None:
         if window < 1:
             raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
@@ -444,10 +494,27 @@ class _Run:
     # ---------------------------------------------------------------- pairs
 
     def track_parallax(self, a: _Frame, b: _Frame) -> float:
+        """Homography residual (px) of the tracks a and b share (0: too few)."""
+        p1, p2 = self._common(a, b)
+        return homography_parallax(p1, p2) if p1 is not None else 0.0
+
+    def _common(self, a: _Frame, b: _Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
         _, ia, ib = np.intersect1d(a.ids, b.ids, assume_unique=True, return_indices=True)
         if len(ia) < MIN_TRACKS:
-            return 0.0
-        return homography_parallax(a.pts[ia].astype(np.float64), b.pts[ib].astype(np.float64))
+            return None, None
+        return a.pts[ia].astype(np.float64), b.pts[ib].astype(np.float64)
+
+    def track_score(self, a: _Frame, b: _Frame) -> tuple[float, float]:
+        """(homography residual, median de-rotated parallax) in px of the tracks a and b share;
+        the second is 0 unless the first shows parallax (no pose from a rotation or a plane)."""
+        p1, p2 = self._common(a, b)
+        if p1 is None:
+            return 0.0, 0.0
+        h = homography_parallax(p1, p2)
+        if h < self.est.min_parallax_px:
+            return h, 0.0
+        pose = pose_from_points(p1, p2, self.K, threshold_px=1.0)
+        return h, (0.0 if pose is None else pose[2])
 
     def pair(self, a: _Frame, b: _Frame) -> _Pair | None:
         """Dense geometry of (a, b) (cached; the reverse pair reuses the flows)."""
@@ -502,17 +569,24 @@ class _Run:
                 j = c + side * k
                 if not 0 <= j < len(buf):
                     break
-                s = self.track_parallax(t, buf[j])
-                best = max(best, s)
-                if s >= self.est.min_parallax_px:
-                    scored.append((j, s))
-                if s >= self.est.target_parallax_px and len(
-                        [x for x in scored if x[1] >= self.est.target_parallax_px]) >= self.est.per_side:
+                h, par = self.track_score(t, buf[j])
+                best = max(best, h)
+                if h >= self.est.min_parallax_px and par >= MIN_DENSE_PARALLAX_PX:
+                    scored.append((j, par))
+                if sum(x[1] >= self.est.target_parallax_px for x in scored) >= self.est.per_side:
                     break
             good = [x for x in scored if x[1] >= self.est.target_parallax_px]
             pick = good[:self.est.per_side] if good else sorted(scored, key=lambda x: -x[1])[:self.est.per_side]
             chosen += pick
         return chosen, best
+
+    def _add_map(self, maps: list, t: _Frame, buf: list[_Frame], j: int) -> None:
+        p = self.pair(t, buf[j])
+        if p is None or p.R is None or p.parallax_px < MIN_DENSE_PARALLAX_PX:
+            return
+        q, conf, ang = self._pair_map(t, p)
+        if (conf > 0.5).sum() >= 100:
+            maps.append((j, q, conf, ang, p))
 
     def output(self, buf: list[_Frame], c: int) -> CueMap:
         t = buf[c]
@@ -526,13 +600,14 @@ class _Run:
                           track_parallax_px=round(best, 2))
         maps = []  # (j, q_raw, conf, angle, pair)
         for j, _ in chosen:
-            p = self.pair(t, buf[j])
-            if p is None or p.R is None or p.parallax_px < MIN_DENSE_PARALLAX_PX:
-                continue
-            q, conf, ang = self._pair_map(t, p)
-            if (conf > 0.5).sum() < 100:
-                continue
-            maps.append((j, q, conf, ang, p))
+            self._add_map(maps, t, buf, j)
+        if maps and not any(buf[j].q is not None and buf[j].epoch == self.epoch for j, *_ in maps):
+            # no chosen neighbour carries the clip's unit: anchor on the earliest output frame
+            # of the same chain in the window, which also joins the fusion
+            prior = [j for j in range(c)
+                     if buf[j].q is not None and buf[j].epoch == self.epoch and j not in dict(chosen)]
+            if prior:  # the earliest: the longest baseline, mostly
+                self._add_map(maps, t, buf, prior[0])
         if not maps:
             return _empty(t.full_size, "flow or pose failed on every neighbour (no rigid parallax)",
                           track_parallax_px=round(best, 2))
@@ -546,7 +621,7 @@ class _Run:
             if back is None or back.R is None:
                 continue
             qn, cn, _ = self._pair_map(n, back, step=2)
-            r = _median_ratio(qn, n.q[::2, ::2], (cn > 0.5) & (n.conf[::2, ::2] > 0.5))
+            r = _median_ratio(qn, n.q[::2, ::2], (cn > 0.25) & (n.conf[::2, ::2] > 0.5))
             if r is not None:
                 scales[j] = r
         ref = max(maps, key=lambda m: (m[0] in scales, float((m[2] > 0.5).sum())))
