@@ -366,13 +366,9 @@ class PeopleDetector:
             soft = _resize(cv2.GaussianBlur(share.astype(np.float32), (3, 3), 0), (aw, ah))
             mask = matte * soft
             # the face is always part of its person (the matte sometimes misses one): a soft ellipse
-            fx0, fy0, fx1, fy1 = (c * aw / w for c in face["box"])
-            ellipse = np.zeros_like(mask)
-            cv2.ellipse(ellipse, (((fx0 + fx1) / 2 - 0.5, (fy0 + fy1) / 2 - 0.5), ((fx1 - fx0) * 0.9, (fy1 - fy0) * 1.1),
-                                  0.0), face["score"], -1)
-            mask = np.maximum(mask, cv2.GaussianBlur(ellipse, (0, 0), max(0.7, 0.05 * (fx1 - fx0))))
+            _add_face_ellipse(mask, [c * aw / w for c in face["box"]], face["score"])
+            mask = cv2.threshold(mask, MIN_MATTE, 0.0, cv2.THRESH_TOZERO)[1]
             full_mask = _resize(mask, (w, h))
-            full_mask[full_mask < MIN_MATTE] = 0.0
             person = Person(mask=full_mask, face_box=face["box"], face_width_px=float(face["width"]),
                             distance_m=float(face["distance"]), mouth_open=face["mouth"], score=face["score"])
             layers.append(_Layer(person, mask, _resize(_relief(person, share, gs), (aw, ah))))
@@ -381,24 +377,41 @@ class PeopleDetector:
     @staticmethod
     def _answer(layers: list[_Layer], h: int, w: int, info: dict) -> PeopleFrame:
         """Combine the people into the CueMap: far to near, a nearer person takes a pixel where its
-        matte is above 0.3 or above the matte there so far. The winner's inverse depth is chosen at
-        analysis size (every pixel: no NaN to spread) and upsampled once."""
-        q = np.full((h, w), np.nan, np.float32)
-        conf = np.zeros((h, w), np.float32)
-        if layers:
+        matte is above 0.3 or above the matte there so far. The winner's matte (confidence) and
+        inverse depth are chosen at analysis size (q on every pixel: no NaN to spread) and
+        upsampled once each."""
+        if not layers:
+            q, conf = np.full((h, w), np.nan, np.float32), np.zeros((h, w), np.float32)
+        else:
             far_to_near = sorted(layers, key=lambda lay: -lay.person.distance_m)
             q_low = far_to_near[0].inverse.copy()
             c_low = np.zeros_like(q_low)
             for layer in far_to_near:
-                take = (layer.mask > MIN_MATTE) & ((layer.mask > 0.3) | (layer.mask > c_low))
+                take = (layer.mask > 0) & ((layer.mask > 0.3) | (layer.mask > c_low))
                 q_low[take], c_low[take] = layer.inverse[take], layer.mask[take]
-                mask = layer.person.mask
-                take = (mask > 0) & ((mask > 0.3) | (mask > conf))
-                conf[take] = mask[take]
-            q = _resize(q_low, (w, h))
-            q[conf <= 0] = np.nan
+            # one upsampling each; equal to the winner's own full-size matte except on seams
+            conf, q = _resize(c_low, (w, h)), _resize(q_low, (w, h))
+            np.copyto(q, np.float32(np.nan), where=conf <= 0)
         persons = [lay.person for lay in sorted(layers, key=lambda lay: lay.person.distance_m)]
         return PeopleFrame(persons=persons, cue=CueMap("people", q, conf, metric=True, shift_free=True, info=info))
+
+
+def _add_face_ellipse(mask: np.ndarray, box: list[float], value: float) -> None:
+    """Raise ``mask`` (in place) to a soft ellipse of ``value`` filling the face ``box`` (x0, y0,
+    x1, y1 in mask px), slightly taller than wide so the forehead and chin are in."""
+    x0, y0, x1, y1 = box
+    sigma = max(0.7, 0.05 * (x1 - x0))
+    pad = int(np.ceil(3 * sigma + 0.1 * (y1 - y0)))
+    h, w = mask.shape
+    rx0, ry0 = max(0, int(x0) - pad), max(0, int(y0) - pad)
+    rx1, ry1 = min(w, int(np.ceil(x1)) + pad), min(h, int(np.ceil(y1)) + pad)
+    if rx1 <= rx0 or ry1 <= ry0:
+        return
+    ellipse = np.zeros((ry1 - ry0, rx1 - rx0), np.float32)
+    cv2.ellipse(ellipse, (((x0 + x1) / 2 - 0.5 - rx0, (y0 + y1) / 2 - 0.5 - ry0), ((x1 - x0) * 0.9, (y1 - y0) * 1.1),
+                          0.0), float(value), -1)
+    roi = mask[ry0:ry1, rx0:rx1]
+    np.maximum(roi, cv2.GaussianBlur(ellipse, (0, 0), sigma), out=roi)
 
 
 @dataclass
