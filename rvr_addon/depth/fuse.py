@@ -1,0 +1,260 @@
+"""Edge-aware fusion of the depth cues with the network's dense prior, into D (DESIGN units).
+
+Per frame, in metric inverse depth ``q`` (1/m, larger = nearer; :mod:`.cues`):
+
+1. **Scale of the clip.** People (face size) are metric. Parallax is known up to one clip-wide
+   scale: it is fixed from the people where both see the same pixels (a running median of the
+   ratio over the clip), else once, at the first frame with parallax, so that the median trusted
+   pixel is ``default_distance_m`` away. The clip keeps that scale, so D of one scene point is
+   the same in every frame.
+2. **The network.** Its D is affine in q (``q = a D + b``, a < 0). Where geometry (parallax)
+   covers the frame, a and b are fitted by weighted least squares on the trusted pixels; with
+   people alone (a still camera) only b is fitted (on the people) and a keeps the lens's
+   ``-1 / K``: the network's relief survives, placed at the people's distance. The fit is
+   smoothed over frames (exponential, ``fit_memory``) so a frame's fit does not flicker.
+   Without any geometric cue the network's own D is used, already in DESIGN units.
+3. **Behind the people.** Unless parallax says otherwise, what surrounds a person is no nearer
+   than ``behind_ratio`` times that person's inverse depth (an interview's backdrop must not
+   come out at the face's depth): a ceiling on q that fades out ``behind_reach`` of the frame
+   width away from each person.
+4. **Edge-aware densification.** The cues are combined by confidence (weights ``*_weight``;
+   the network everywhere with a small weight, as the prior) and spread with OpenCV's fast
+   global smoother guided by the frame, as a normalised convolution (smooth(w q) / smooth(w)),
+   so geometry fills the textureless areas between its trusted pixels and stops at edges.
+5. ``D = K (q_ref - q)`` with K of the reference lens (:func:`.cues.lens_constant`) and q_ref
+   the clip's first median inverse depth (D = 0 there; the render's focus is separate).
+
+Work runs at ``analysis_long_side``; D is brought back to full size with the frame as guide.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .cues import CueMap, lens_constant
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """Knobs of :class:`DepthFuser` (recorded in the cache key)."""
+
+    analysis_long_side: int = 640
+    network_weight: float = 0.05
+    people_weight: float = 1.0
+    parallax_weight: float = 1.0
+    smooth_lambda: float = 80.0
+    """FGS smoothness (larger = spread further)."""
+    smooth_sigma_color: float = 6.0
+    """FGS edge sensitivity in 8-bit code values (smaller = stops at fainter edges)."""
+    default_distance_m: float = 3.0
+    behind_ratio: float = 0.8
+    behind_reach: float = 0.15
+    fit_memory: float = 0.8
+    """Weight of the previous frames' network fit (0 = fit every frame on its own)."""
+
+    def describe(self) -> dict:
+        """JSON-able settings (part of the cache key)."""
+        return asdict(self)
+
+
+@dataclass
+class FusedDepth:
+    """One frame's fused depth: D (H, W) float32 DESIGN units; confidence (H, W) float32 0..1
+    (how much geometry, not the prior, decided each pixel); cues: names of the cues that spoke."""
+
+    disparity: np.ndarray
+    confidence: np.ndarray
+    cues: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+def _resize(a: np.ndarray, size: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    import cv2
+
+    if (a.shape[1], a.shape[0]) == size:
+        return a
+    interp = cv2.INTER_NEAREST if nearest else (cv2.INTER_AREA if size[0] < a.shape[1] else cv2.INTER_LINEAR)
+    return cv2.resize(a, size, interpolation=interp)
+
+
+def _resize_masked(q: np.ndarray, c: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """NaN-aware area resize of a cue: (q, confidence) at ``size``."""
+    ok = np.isfinite(q) & (c > 0)
+    w = np.where(ok, c, 0.0).astype(np.float32)
+    num = _resize(np.where(ok, q * w, 0.0).astype(np.float32), size)
+    den = _resize(w, size)
+    qs = np.where(den > 1e-6, num / np.maximum(den, 1e-6), np.nan).astype(np.float32)
+    return qs, np.clip(den, 0.0, 1.0).astype(np.float32)
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    order = np.argsort(values)
+    cw = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cw, 0.5 * cw[-1])])
+
+
+def smooth_fill(guide: np.ndarray, values: np.ndarray, weights: np.ndarray, lam: float,
+                sigma_color: float) -> tuple[np.ndarray, np.ndarray]:
+    """Edge-aware normalised convolution with OpenCV's fast global smoother (Min et al. 2014):
+    (smooth(w v) / smooth(w), smooth(w)). guide (h, w, 3) uint8; values, weights (h, w)."""
+    import cv2
+
+    fgs = cv2.ximgproc.createFastGlobalSmootherFilter(guide, float(lam), float(sigma_color))
+    w = np.where(np.isfinite(values), weights, 0.0).astype(np.float32)
+    num = fgs.filter(np.where(w > 0, values * w, 0.0).astype(np.float32))
+    den = fgs.filter(w)
+    out = num / np.maximum(den, 1e-8)
+    return out.astype(np.float32), den.astype(np.float32)
+
+
+class DepthFuser:
+    """Fuses one clip's frames, in order (it keeps the clip's scale, q_ref and network fit).
+
+    width: the clip's native width (DESIGN units are px at this width).
+    """
+
+    def __init__(self, width: int, settings: FusionSettings = FusionSettings()) -> None:
+        self.width = int(width)
+        self.settings = settings
+        self.K = lens_constant(self.width)
+        self.parallax_scale: float | None = None
+        self._ratios: list[float] = []
+        self.q_ref: float | None = None
+        self._fit: tuple[float, float] | None = None
+        self.used: dict[str, int] = {"frames": 0, "parallax": 0, "people": 0, "network_only": 0}
+
+    # -------------------------------------------------------------- pieces
+
+    def _parallax_metric(self, par: CueMap, people: CueMap | None) -> tuple[np.ndarray, np.ndarray]:
+        """Parallax inverse depth in 1/m with the clip's scale (fixed or refined by people)."""
+        s = self.settings
+        q, c = par.inverse_depth, par.confidence
+        ok = np.isfinite(q) & (c > 0.5) & (q > 0)
+        if people is not None:
+            both = ok & np.isfinite(people.inverse_depth) & (people.confidence > 0.5)
+            if both.sum() > 50:
+                self._ratios.append(float(np.median(people.inverse_depth[both] / q[both])))
+                self._ratios = self._ratios[-200:]
+                self.parallax_scale = float(np.median(self._ratios))
+        if self.parallax_scale is None and ok.sum() > 50:
+            self.parallax_scale = (1.0 / s.default_distance_m) / float(np.median(q[ok]))
+        scale = self.parallax_scale if self.parallax_scale is not None else 0.0
+        return (q * scale).astype(np.float32), np.where(scale > 0, c, 0.0).astype(np.float32)
+
+    def _network_fit(self, d: np.ndarray, q: np.ndarray, w: np.ndarray, slope_free: bool) -> tuple[float, float] | None:
+        """(a, b) of q = a d + b by weighted least squares (a < 0); b only when not slope_free."""
+        ok = np.isfinite(q) & (w > 0.3)
+        if ok.sum() < 50:
+            return None
+        dd, qq, ww = d[ok].astype(np.float64), q[ok].astype(np.float64), w[ok].astype(np.float64)
+        a_lens = -1.0 / self.K
+        if slope_free and np.ptp(qq) > 1e-6:
+            sw = ww.sum()
+            md, mq = (ww * dd).sum() / sw, (ww * qq).sum() / sw
+            var = (ww * (dd - md) ** 2).sum()
+            a = (ww * (dd - md) * (qq - mq)).sum() / var if var > 1e-12 else a_lens
+            if not a < 0:  # the network disagrees in sign with geometry here: keep the lens's slope
+                a = a_lens
+            return float(a), float(mq - a * md)
+        return a_lens, float(_weighted_median(qq - a_lens * dd, ww))
+
+    def _remember(self, fit: tuple[float, float] | None) -> tuple[float, float] | None:
+        m = self.settings.fit_memory
+        if fit is None:
+            return self._fit
+        if self._fit is not None:
+            fit = (m * self._fit[0] + (1 - m) * fit[0], m * self._fit[1] + (1 - m) * fit[1])
+        self._fit = fit
+        return fit
+
+    def _behind_people(self, people: CueMap, shape: tuple[int, int]) -> np.ndarray:
+        """A ceiling on q around the people (see the module docstring), inf far from them."""
+        import cv2
+
+        s = self.settings
+        q = np.where(np.isfinite(people.inverse_depth) & (people.confidence > 0.5), people.inverse_depth, 0.0)
+        if not (q > 0).any():
+            return np.full(shape, np.inf, np.float32)
+        # a max filter of the people's q, on a coarse copy (a large kernel at full size is slow)
+        f = min(1.0, 96.0 / max(shape))
+        small = (max(int(round(shape[1] * f)), 1), max(int(round(shape[0] * f)), 1))
+        coarse = cv2.resize(q.astype(np.float32), small, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
+        coarse = np.maximum(coarse, cv2.resize(q.astype(np.float32), small, interpolation=cv2.INTER_NEAREST))
+        reach = max(int(round(s.behind_reach * small[0])), 1)
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
+        near = cv2.resize(cv2.dilate(coarse, kernel), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+        return np.where(near > 0, s.behind_ratio * near, np.inf).astype(np.float32)
+
+    # -------------------------------------------------------------- the frame
+
+    def __call__(self, frame: np.ndarray, network_d: np.ndarray, cues: list[CueMap]) -> FusedDepth:
+        """frame (H, W, 3) uint8 sRGB; network_d (H, W) DESIGN units; cues at any size (each
+        is resampled). Returns :class:`FusedDepth` at the frame's size."""
+        import cv2
+
+        s = self.settings
+        h, w = frame.shape[:2]
+        self.used["frames"] += 1
+        long_side = max(h, w)
+        f = min(1.0, s.analysis_long_side / long_side)
+        size = (max(int(round(w * f)), 1), max(int(round(h * f)), 1))
+        guide = _resize(frame, size)
+        d_net = _resize(network_d.astype(np.float32), size)
+        by_name = {}
+        for cue in cues:
+            if cue.coverage > 0:
+                q, c = _resize_masked(cue.inverse_depth, cue.confidence, size)
+                by_name[cue.name] = CueMap(cue.name, q, c, cue.metric, cue.shift_free, cue.info)
+        people = by_name.get("people")
+        par = by_name.get("parallax")
+        if par is not None:
+            q_par, c_par = self._parallax_metric(par, people)
+            par = CueMap("parallax", q_par, c_par, True, True, par.info) if (c_par > 0).any() else None
+        if par is None and people is None:
+            self.used["network_only"] += 1
+            return FusedDepth(network_d.astype(np.float32), np.zeros((h, w), np.float32), ["network"],
+                              {"fit": None})
+        # the network, mapped to q by the geometric cues
+        geo_q = np.full(d_net.shape, np.nan, np.float32)
+        geo_w = np.zeros(d_net.shape, np.float32)
+        for cue, weight in ((par, s.parallax_weight), (people, s.people_weight)):
+            if cue is None:
+                continue
+            wc = weight * cue.confidence
+            better = wc > geo_w
+            geo_q = np.where(better, cue.inverse_depth, geo_q)
+            geo_w = np.where(better, wc, geo_w)
+        fit = self._remember(self._network_fit(d_net, geo_q, geo_w, slope_free=par is not None))
+        if fit is None:
+            fit = (-1.0 / self.K, 0.0)
+        q_net = (fit[0] * d_net + fit[1]).astype(np.float32)
+        if people is not None:
+            ceiling = self._behind_people(people, d_net.shape)
+            if par is not None:  # parallax overrules the assumption where it is trusted
+                ceiling = np.where(par.confidence > 0.5, np.inf, ceiling)
+            outside = ~(np.isfinite(people.inverse_depth) & (people.confidence > 0.5))
+            q_net = np.where(outside, np.minimum(q_net, ceiling), q_net)
+        num = s.network_weight * q_net
+        den = np.full(d_net.shape, s.network_weight, np.float32)
+        geo = np.where(geo_w > 0, geo_w, 0.0)
+        num = num + np.where(geo > 0, geo * np.nan_to_num(geo_q), 0.0)
+        den = den + geo
+        target = num / den
+        q, conf = smooth_fill(guide, target, den, s.smooth_lambda, s.smooth_sigma_color)
+        # keep the people's own matte edges: inside a person the cue itself is the answer
+        if people is not None:
+            inside = np.clip(people.confidence, 0.0, 1.0)
+            q = np.where(np.isfinite(people.inverse_depth), inside * people.inverse_depth + (1 - inside) * q, q)
+        if self.q_ref is None:
+            self.q_ref = float(np.median(q))
+        d = (self.K * (self.q_ref - q)).astype(np.float32)
+        conf = np.clip((conf - s.network_weight) / max(1.0 - s.network_weight, 1e-6), 0.0, 1.0)
+        if (d.shape[1], d.shape[0]) != (w, h):
+            d = cv2.resize(d, (w, h), interpolation=cv2.INTER_LINEAR)
+            conf = cv2.resize(conf, (w, h), interpolation=cv2.INTER_LINEAR)
+        names = [c.name for c in (par, people) if c is not None] + ["network"]
+        for n in names[:-1]:
+            self.used[n] += 1
+        return FusedDepth(d, conf.astype(np.float32), names,
+                          {"fit": [float(fit[0]), float(fit[1])], "parallax_scale": self.parallax_scale})
