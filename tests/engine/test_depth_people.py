@@ -219,3 +219,26 @@ def test_grow_labels_splits_along_the_mask():
     labels = people_mod.grow_labels(core, seeds, [1, 1])
     assert (labels[:25, 2:12] == 1).all() and (labels[:25, 28:38] == 2).all()
     assert (labels[~core] == 0).all() and (labels[core] > 0).all()
+
+
+def test_overlapping_people_the_nearer_wins():
+    """Two people whose mattes overlap: the nearer one's inverse depth wherever its matte is
+    solid, the far one's only where the near matte is faint; NaN and confidence 0 outside both."""
+    h, w = 60, 80
+    far_mask, near_mask = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+    far_mask[10:50, 10:50] = 1.0
+    near_mask[20:60, 30:70] = 0.9
+    near_mask[20:60, 30:34] = 0.1  # a faint fringe over the far person
+    layers = []
+    for mask, dist in ((near_mask, 1.0), (far_mask, 2.0)):
+        person = people_mod.Person(mask=mask, face_box=(0, 0, 1, 1), face_width_px=10.0, distance_m=dist,
+                                   mouth_open=None, score=1.0)
+        layers.append(people_mod._Layer(person, mask, np.full((h, w), 1 / dist, np.float32)))
+    result = PeopleDetector._answer(layers, h, w, {"people": 2})
+    q, conf = result.cue.inverse_depth, result.cue.confidence
+    assert [p.distance_m for p in result.persons] == [1.0, 2.0]
+    assert np.allclose(q[30:50, 40:50], 1.0) and np.allclose(conf[30:50, 40:50], 0.9)  # overlap: near
+    assert np.allclose(q[30:50, 30:34], 0.5) and np.allclose(conf[30:50, 30:34], 1.0)  # faint near fringe
+    assert np.allclose(q[12:18, 12:48], 0.5)  # far alone
+    assert np.isnan(q[:10]).all() and not conf[:10].any()
+    check_cue(result, (h, w))
