@@ -68,6 +68,7 @@ MIN_DISTANCE_M = 0.10
 _GRID_LONG_SIDE = 160  # long side (px) of the grid the split between people runs on
 _MESH_CROP_SCALE = 1.9  # face-mesh crop side / face box side
 _MESH_CROP_PX = 256  # long side (px) the face-mesh crop is resized to at most
+_MESH_MIN_CROP_PX = 192  # ... and at least (bicubic)
 
 # face-mesh landmark indices (canonical 468-point topology; 468-477 = refined irises)
 _CHEEK_R, _CHEEK_L = 234, 454
@@ -156,12 +157,15 @@ def check_frame(frame: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(frame)
 
 
-def _resize(image: np.ndarray, size: tuple[int, int], smooth: bool = True) -> np.ndarray:
-    """cv2.resize to size (w, h); area filter when shrinking, bilinear when enlarging."""
+def _resize(image: np.ndarray, size: tuple[int, int], cubic: bool = False) -> np.ndarray:
+    """cv2.resize to size (w, h): area filter when shrinking, bilinear (or bicubic) when enlarging;
+    the image itself when it has that size already."""
     if (image.shape[1], image.shape[0]) == size:
         return image
-    shrink = size[0] < image.shape[1]
-    interp = (cv2.INTER_AREA if shrink else cv2.INTER_LINEAR) if smooth else cv2.INTER_NEAREST
+    if size[0] < image.shape[1]:
+        interp = cv2.INTER_AREA
+    else:
+        interp = cv2.INTER_CUBIC if cubic else cv2.INTER_LINEAR
     return cv2.resize(image, size, interpolation=interp)
 
 
@@ -321,8 +325,12 @@ class PeopleDetector:
         if x1 - x0 < 8 or y1 - y0 < 8:
             return None
         crop = frame[y0:y1, x0:x1]
-        cw, ch = _scaled_size(x1 - x0, y1 - y0, _MESH_CROP_PX)
-        found = mesh.process(np.ascontiguousarray(_resize(crop, (cw, ch)))).multi_face_landmarks
+        # at most _MESH_CROP_PX on the long side; small faces enlarged to _MESH_MIN_CROP_PX (the face
+        # mesh's own detector finds no face of a few dozen px)
+        long_side = max(x1 - x0, y1 - y0)
+        cs = min(_MESH_CROP_PX, max(_MESH_MIN_CROP_PX, long_side)) / long_side
+        cw, ch = max(1, round((x1 - x0) * cs)), max(1, round((y1 - y0) * cs))
+        found = mesh.process(np.ascontiguousarray(_resize(crop, (cw, ch), cubic=True))).multi_face_landmarks
         if not found:
             return None
         pts = np.array([(p.x, p.y, p.z) for p in found[0].landmark], np.float64)
