@@ -50,7 +50,8 @@ def main() -> None:
     out: dict[str, float] = {}
     with PeopleDetector() as detector:
         for name, (w, h) in SIZES.items():
-            frame = cv2.resize(source, (w, h), interpolation=cv2.INTER_AREA if w <= source.shape[1] else cv2.INTER_CUBIC)
+            shrink = w <= source.shape[1]
+            frame = cv2.resize(source, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_CUBIC)
             people = len(detector(frame).persons)
             s = ANALYSIS_LONG_SIDE / max(w, h)
             small = cv2.resize(frame, (round(w * min(s, 1)), round(h * min(s, 1))), interpolation=cv2.INTER_AREA)

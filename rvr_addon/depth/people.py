@@ -74,7 +74,8 @@ _MESH_MIN_CROP_PX = 192  # ... and at least (bicubic)
 _CHEEK_R, _CHEEK_L = 234, 454
 _LIP_UPPER_INNER, _LIP_LOWER_INNER = 13, 14
 _MOUTH_CORNER_R, _MOUTH_CORNER_L = 61, 291
-_IRIS_R, _IRIS_L = 468, 473
+_IRIS_R, _IRIS_L = 468, 473  # (the refined mesh has them: 478 points)
+_NOSE_TIP = 1
 
 
 class PeopleModelError(InputError):
@@ -190,7 +191,8 @@ def face_width_3d(points: np.ndarray) -> float:
 
 def grow_labels(core: np.ndarray, seeds: np.ndarray, rates: list[int]) -> np.ndarray:
     """Geodesic split of a mask: labels 1..N from ``seeds`` (uint8, 0 = none) grow inside ``core``
-    (bool), label i by ``rates[i-1]`` steps per round (a step: 1 px sideways, 2 px up or down) (nearer = faster), earlier labels first on ties.
+    (bool), label i by ``rates[i-1]`` steps per round (nearer = faster; a step: 1 px sideways, 2 px
+    up or down), earlier labels first on ties.
     Returns a uint8 label image (0 where no seed can reach)."""
     labels = np.where(core, seeds, 0).astype(np.uint8)
     kernel = np.ones((5, 3), np.uint8)  # 2 px down/up per px sideways: bodies hang below their faces
@@ -308,7 +310,6 @@ class PeopleDetector:
                 points = self._mesh(models["mesh"], frame, face["box"])
                 if points is not None:
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
-                    face["iris_px"] = float(np.linalg.norm(points[_IRIS_R, :2] - points[_IRIS_L, :2]))
             face["distance"] = float(np.clip(focal_px(w, self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))
         return faces
@@ -316,7 +317,8 @@ class PeopleDetector:
     @staticmethod
     def _mesh(mesh: Any, frame: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray | None:
         """Face-mesh landmarks (478, 3) in full-size px (z in the same px scale) on a square crop
-        around box, or None when the mesh finds no face there."""
+        around box, or None when the mesh finds no face there (or finds a neighbour: its nose tip
+        must lie inside box)."""
         h, w = frame.shape[:2]
         cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
         half = _MESH_CROP_SCALE * max(box[2] - box[0], box[3] - box[1]) / 2
@@ -337,11 +339,13 @@ class PeopleDetector:
         if pts.shape[0] <= _IRIS_L:
             return None
         sx, sy = x1 - x0, y1 - y0
-        return np.stack([x0 + pts[:, 0] * sx, y0 + pts[:, 1] * sy, pts[:, 2] * sx], axis=1)
+        points = np.stack([x0 + pts[:, 0] * sx, y0 + pts[:, 1] * sy, pts[:, 2] * sx], axis=1)
+        nose_x, nose_y = points[_NOSE_TIP, :2]
+        return points if box[0] <= nose_x <= box[2] and box[1] <= nose_y <= box[3] else None
 
     def _split(self, matte: np.ndarray, faces: list[dict], full: tuple[int, int]) -> list[_Layer]:
-        """Split the analysis-size matte between faces (geodesic, nearer faces grow faster) and
-        build each person's full-size matte and inverse depth inside its box (nearest first)."""
+        """Split the analysis-size matte between faces (geodesic, nearer faces grow faster); each
+        person's matte and inverse depth at analysis size, its full-size matte (nearest first)."""
         h, w = full
         ah, aw = matte.shape
         faces = sorted(faces, key=lambda f: f["distance"])  # nearest first: it wins ties

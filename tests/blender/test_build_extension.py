@@ -107,8 +107,9 @@ def fake_wheel(path: Path) -> Path:
              "mediapipe/modules/hand_landmark/hand_landmark_full.tflite": b"drop" * 1000,
              "mediapipe-0.10.14.dist-info/METADATA": b"Name: mediapipe\nVersion: 0.10.14\n",
              "mediapipe-0.10.14.dist-info/WHEEL": b"Wheel-Version: 1.0\nRoot-Is-Purelib: false\n"}
-    record = "".join(f"{n},sha256={base64.urlsafe_b64encode(hashlib.sha256(d).digest()).rstrip(b'=').decode()},{len(d)}\n"
-                     for n, d in files.items()) + "mediapipe-0.10.14.dist-info/RECORD,,\n"
+    digest = lambda d: base64.urlsafe_b64encode(hashlib.sha256(d).digest()).rstrip(b"=").decode()  # noqa: E731
+    record = "".join(f"{n},sha256={digest(d)},{len(d)}\n" for n, d in files.items())
+    record += "mediapipe-0.10.14.dist-info/RECORD,,\n"
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         for name, data in files.items():
             z.writestr(name, data)
@@ -143,7 +144,8 @@ def test_slim_mediapipe_wheel(tmp_path):
         for name, digest, size in rows:
             if digest:
                 data = z.read(name)
-                assert digest == "sha256=" + base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+                want = base64.urlsafe_b64encode(hashlib.sha256(data).digest()).rstrip(b"=").decode()
+                assert digest == "sha256=" + want
                 assert int(size) == len(data)
     (tmp_path / "b").mkdir()
     assert slim_wheel.slim(src, tmp_path / "b").read_bytes() == out.read_bytes()

@@ -130,7 +130,8 @@ def test_without_face_mesh_distance_from_the_box(detector):
         plain = boxes_only(frame)
     meshed = detector(frame)
     assert len(plain.persons) == 2 and all(p.mouth_open is None for p in plain.persons)
-    for a, b in zip(sorted(meshed.persons, key=lambda p: p.face_box[0]), sorted(plain.persons, key=lambda p: p.face_box[0])):
+    left_to_right = lambda persons: sorted(persons, key=lambda p: p.face_box[0])  # noqa: E731
+    for a, b in zip(left_to_right(meshed.persons), left_to_right(plain.persons)):
         assert b.distance_m == pytest.approx(a.distance_m, rel=0.2)
 
 
