@@ -346,6 +346,13 @@ def add_estimate_parser(sub) -> None:
     p.add_argument("--depth-is-distance", action="store_true",
                    help="the maps hold distance (larger = farther): use 1/map before the affine")
     p.add_argument("--no-hdr", action="store_true", help="with --depth: E = 0 (no network needed)")
+    p.add_argument("--depth-method", choices=("auto", "parallax", "people", "network", "external"), default="auto",
+                   help="where D comes from: auto (default: parallax where the camera translates, people layers "
+                        "where there are people, the network elsewhere, fused), parallax, people, network (the "
+                        "network alone) or external (--depth MAPS)")
+    p.add_argument("--hfov", type=float, metavar="DEG",
+                   help="the camera's horizontal field of view for the geometric cues (default 66, a phone's "
+                        "main camera)")
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
     p.add_argument("--stop", type=int, help="stop before this frame")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
@@ -365,7 +372,8 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         input=args.input, output=args.output, weights=args.weights, depth=args.depth, depth_scale=args.depth_scale,
         depth_offset=args.depth_offset, depth_points=list(args.depth_points or []),
         depth_is_distance=args.depth_is_distance, no_hdr=args.no_hdr, start=args.start, stop=args.stop,
-        fps=args.fps, max_pixels=args.max_pixels))
+        fps=args.fps, max_pixels=args.max_pixels, depth_method=args.depth_method, hfov_deg=args.hfov))
+    print(job.plan.summary())
     with on_interrupt("estimate", lambda: f"stopped after {job.done} of {job.total} frames; they are kept in "
                                           f"{args.output}; run the same command again to continue"):
         job.run(progress=not args.quiet)

@@ -69,6 +69,9 @@ FB_SAMPLE_PX = 0.5
 E_THRESHOLD_PX = 0.75
 """RANSAC threshold (px) of the essential matrix."""
 MIN_DENSE_PARALLAX_PX = 1.5
+STILL_SHIFT_PX = 1.0
+"""camera_translates: the lower quartile of the tracks must move this far (px at analysis size) across the
+window before a homography residual counts as baseline (moving people on a still shot do not)."""
 """Median de-rotated parallax (px) of a pair's pose inliers under which the pair is dropped."""
 FB_TOL_PX, FB_TOL_RELATIVE = 1.0, 0.05
 """Forward-backward tolerance of a pixel's flow: px + share of the flow's length."""
@@ -408,7 +411,7 @@ class ParallaxEstimator:
             buf = buf[-(self.window + 1):]
             texture |= len(buf[-1].ids) >= MIN_TRACKS
             moved = max(moved, buf[-1].motion_px)
-            if len(buf) > 1:
+            if len(buf) > 1 and run.track_shift(buf[0], buf[-1]) >= STILL_SHIFT_PX:
                 best = max(best, run.track_parallax(buf[0], buf[-1]))
             if best >= self.target_parallax_px:
                 break
@@ -497,6 +500,13 @@ class _Run:
         """Homography residual (px) of the tracks a and b share (0: too few)."""
         p1, p2 = self._common(a, b)
         return homography_parallax(p1, p2) if p1 is not None else 0.0
+
+    def track_shift(self, a: _Frame, b: _Frame) -> float:
+        """Lower-quartile displacement (px) of the tracks a and b share (0: too few). A still
+        camera keeps the background in place even where people move (their residual is no
+        baseline); a moving camera moves nearly every track."""
+        p1, p2 = self._common(a, b)
+        return float(np.percentile(np.hypot(*(p2 - p1).T), 25)) if p1 is not None else 0.0
 
     def _common(self, a: _Frame, b: _Frame) -> tuple[np.ndarray | None, np.ndarray | None]:
         _, ia, ib = np.intersect1d(a.ids, b.ids, assume_unique=True, return_indices=True)

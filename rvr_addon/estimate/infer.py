@@ -269,6 +269,10 @@ class EstimateSettings:
     stop: int | None = None
     fps: float | None = None
     max_pixels: int | None = None
+    depth_method: str = "auto"
+    """``auto`` | ``parallax`` | ``people`` | ``network`` | ``external`` (:mod:`rvr_addon.depth.system`)."""
+    hfov_deg: float | None = None
+    """The camera's horizontal field of view (deg) for the geometric cues; None: a phone's (66)."""
 
 
 class EstimateJob:
@@ -281,8 +285,6 @@ class EstimateJob:
         from .cache import CACHE_FORMAT, ClipCache, source_fingerprint
 
         s = self.settings = settings
-        if s.no_hdr and s.depth is None:
-            raise InputError("--no-hdr needs --depth: without external depth the network is what estimates D")
         if s.depth_points and (s.depth_scale != 1.0 or s.depth_offset != 0.0):
             raise InputError("give either --depth-points or --depth-scale/--depth-offset, not both")
         self.clip = probe_clip(s.input, fps=s.fps)
@@ -297,6 +299,7 @@ class EstimateJob:
                                      list(s.depth_points))
             self.depth.maps.check_length(stop)
             self.depth.fit(self.start, size)
+        self.plan = self._plan(size)
         self.model: LoadedModel | None = None
         if not s.no_hdr:
             self.model = model if model is not None else load_estimator(
@@ -306,16 +309,45 @@ class EstimateJob:
         source = source_fingerprint(s.input)
         key = {"format": CACHE_FORMAT, "engine_version": __version__, "model_hash": model_hash,
                "source_hash": source["hash"], "resolution": list(size),
-               "depth": self.depth.describe() if self.depth is not None else "network"}
+               "depth": self.depth.describe() if self.depth is not None else
+               "network" if self.plan.cues == ("network",) else self.plan.key()}
         if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
-                "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network"}
+                "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
+                "depth_plan": {"method": self.plan.method, "cues": list(self.plan.cues),
+                               "reasons": self.plan.reasons}}
         self.cache = ClipCache(s.output, key, info)
+        self.stream = None
+        if len(self.plan.cues) > 1:
+            from ..depth.system import DepthStream
+
+            self.stream = DepthStream(self.plan, size, self.estimator)
+        self._all_cached: bool | None = None
         self.done = self.computed = self.reused = 0
         self.text = f"estimating {self.total} frames of {self.clip.path.name}"
         self._frames = None
         self._finished = False
+
+    def _plan(self, size: tuple[int, int]):
+        """The clip's :class:`~rvr_addon.depth.system.DepthPlan` (which cues run, and why)."""
+        from ..depth.system import plan_depth
+        from ..io.video import iter_frames
+
+        s = self.settings
+        method = s.depth_method
+        if s.depth is not None:
+            if method not in ("auto", "external"):
+                raise InputError(f"--depth MAPS gives the depth itself; it cannot be combined with --depth-method "
+                                 f"{method} (drop one of them)")
+            method = "external"
+        elif method == "external":
+            raise InputError("--depth-method external needs --depth MAPS (a depth or disparity sequence)")
+        if s.no_hdr and method != "external":
+            raise InputError("--no-hdr needs --depth: without external depth the network is what estimates D")
+        plan = plan_depth(method, lambda: iter_frames(s.input, start=self.start, stop=self.stop), s.hfov_deg)
+        log.info("%s", plan.summary())
+        return plan
 
     def _model_info(self) -> dict | None:
         if self.model is None:
@@ -337,6 +369,13 @@ class EstimateJob:
             return False
         if self._frames is None:
             self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
+            if self.stream is not None:
+                size = (self.clip.width, self.clip.height)
+                self._all_cached = all(self.cache.is_valid(i, size) for i in range(self.start, self.stop))
+                if not self._all_cached:  # the cues keep clip-wide state: run them over every frame
+                    self._frames = self.stream.frames(self._frames)
+        if self.stream is not None and not self._all_cached:
+            return self._step_stream()
         frame = next(self._frames, None)
         if frame is None:
             if self.done < self.total:
@@ -350,6 +389,28 @@ class EstimateJob:
             self.reused += 1
         else:
             self.cache.write(index, *self.compute(frame, index))
+            self.computed += 1
+        self.done += 1
+        if self.done >= self.total:
+            self._close()
+            return False
+        return True
+
+    def _step_stream(self) -> bool:
+        """One frame of the depth system's stream; cached frames are recomputed (the cues' clip
+        scale and fit depend on every frame before) but not rewritten."""
+        item = next(self._frames, None)
+        if item is None:
+            self._close()
+            if self.done < self.total:
+                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
+            return False
+        frame, d, e, _fused = item
+        index = self.start + self.done
+        if self.cache.is_valid(index, (frame.shape[1], frame.shape[0])):
+            self.reused += 1
+        else:
+            self.cache.write(index, d, e)
             self.computed += 1
         self.done += 1
         if self.done >= self.total:
@@ -372,9 +433,18 @@ class EstimateJob:
     def _close(self) -> None:
         if self._frames is not None:
             self._frames.close()
+        used = ""
+        if self.stream is not None:
+            from ..depth.system import describe_usage
+
+            usage = self.stream.usage()
+            if usage.get("frames"):
+                self.cache.info["depth_cues"] = {"used": usage, "notes": list(self.stream.notes)}
+                used = f"; depth: {describe_usage(self.plan, usage)}"
+            self.stream.close()
         self.cache.flush()
         self._finished = True
-        self.text = f"estimated {self.computed} frames, reused {self.reused} from the cache"
+        self.text = f"estimated {self.computed} frames, reused {self.reused} from the cache{used}"
 
     def cancel(self) -> None:
         """Stop; frames written so far stay valid in the cache (meta.json is flushed)."""

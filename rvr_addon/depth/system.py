@@ -1,0 +1,210 @@
+"""The depth system of a clip: which cues run (``--depth-method``), and the stream that runs them.
+
+``auto`` (the default of ``rvr estimate``, Blender's Analyze and ``rvr batch``) decides per clip:
+
+* **parallax** when the camera translates (:meth:`.parallax.ParallaxEstimator.camera_translates`
+  on the first frames of the range: tracks only, no dense flow);
+* **people** when MediaPipe loads (:mod:`.people`); a frame without people just has no such cue;
+* **network** always: the dense prior, and the source of E.
+
+The cues are fused per frame by :class:`.fuse.DepthFuser`. ``parallax`` forces the parallax cue
+(with the network, without people), ``people`` the people cue (with the network), ``network``
+is the network alone (the estimator of ``rvr_addon.estimate``, as before), ``external`` the
+user's maps (``--depth``). What was decided, and why, is :class:`DepthPlan`; it is part of the
+cache key, and how often each cue spoke is recorded in meta.json.
+"""
+from __future__ import annotations
+
+import logging
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from ..errors import InputError
+from .cues import DEFAULT_HFOV_DEG, CueMap
+from .fuse import DepthFuser, FusedDepth, FusionSettings
+
+log = logging.getLogger(__name__)
+
+METHODS = ("auto", "parallax", "people", "network", "external")
+PROBE_FRAMES = 48
+"""Frames of the range the ``auto`` check for camera translation looks at."""
+
+
+@dataclass
+class DepthPlan:
+    """What a clip's depth is made of: the asked method, the cues decided, and why."""
+
+    method: str
+    cues: tuple[str, ...]
+    reasons: dict[str, str] = field(default_factory=dict)
+    hfov_deg: float = DEFAULT_HFOV_DEG
+    fusion: FusionSettings = field(default_factory=FusionSettings)
+
+    def key(self) -> dict:
+        """The cache-key part (settings that change the result)."""
+        out = {"method": self.method, "cues": list(self.cues)}
+        if len(self.cues) > 1:
+            out["hfov_deg"] = self.hfov_deg
+            out["fusion"] = self.fusion.describe()
+        return out
+
+    def summary(self) -> str:
+        """One line for the user: ``depth: parallax + people + network (camera translates: ...)``."""
+        why = "; ".join(f"{k}: {v}" for k, v in self.reasons.items())
+        return f"depth ({self.method}): {' + '.join(self.cues)}" + (f" ({why})" if why else "")
+
+
+def people_available() -> tuple[bool, str]:
+    """Whether the people cue can run here (MediaPipe installed), and why not. A model that then
+    fails to load switches the cue off at the first frame (:class:`DepthStream`)."""
+    import importlib.util
+
+    from .people import INSTALL_HINT, MEDIAPIPE_PIN
+
+    try:
+        found = importlib.util.find_spec("mediapipe") is not None
+    except (ImportError, ValueError):
+        found = False
+    if not found:
+        return False, f"the Python package {MEDIAPIPE_PIN} is not installed; {INSTALL_HINT}"
+    return True, "MediaPipe installed"
+
+
+def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, hfov_deg: float | None = None,
+               fusion: FusionSettings | None = None) -> DepthPlan:
+    """Decide a clip's cues. ``frames``: a callable giving a fresh iterator over the range's frames
+    (the ``auto`` probe reads up to PROBE_FRAMES of them); None skips the probe (no parallax)."""
+    if method not in METHODS:
+        raise InputError(f"--depth-method {method!r}: choose one of {', '.join(METHODS)}")
+    hfov = DEFAULT_HFOV_DEG if hfov_deg is None else float(hfov_deg)
+    if not 1.0 < hfov < 179.0:
+        raise InputError(f"--hfov {hfov}: give the camera's horizontal field of view in degrees (1..179), "
+                         f"e.g. {DEFAULT_HFOV_DEG:g} for a phone's main camera")
+    fusion = fusion or FusionSettings()
+    if method in ("network", "external"):
+        return DepthPlan(method, (method,), {}, hfov, fusion)
+    reasons: dict[str, str] = {}
+    cues: list[str] = []
+    if method in ("auto", "parallax"):
+        if method == "parallax":
+            cues.append("parallax")
+            reasons["parallax"] = "asked for"
+        elif frames is None:
+            reasons["parallax"] = "not probed"
+        else:
+            from .parallax import ParallaxEstimator
+
+            moving, why = ParallaxEstimator().camera_translates(_limited(frames(), PROBE_FRAMES),
+                                                                max_frames=PROBE_FRAMES)
+            reasons["parallax"] = why
+            if moving:
+                cues.append("parallax")
+    if method in ("auto", "people"):
+        ok, why = people_available()
+        if ok:
+            cues.append("people")
+        elif method == "people":
+            raise InputError(f"--depth-method people: {why}")
+        else:
+            reasons["people"] = f"off: {why.splitlines()[0]}"
+            log.warning("depth: the people cue is off (%s); depth comes from the other cues", why.splitlines()[0])
+    cues.append("network")
+    return DepthPlan(method, tuple(cues), reasons, hfov, fusion)
+
+
+def _limited(frames: Iterable[np.ndarray], n: int) -> Iterator[np.ndarray]:
+    for i, f in enumerate(frames):
+        if i >= n:
+            break
+        yield f
+    close = getattr(frames, "close", None)
+    if close is not None:
+        close()
+
+
+Network = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""frame (H, W, 3) uint8 -> (D (H, W) DESIGN units, E (H, W, 3))."""
+
+
+class DepthStream:
+    """Runs a plan's cues over one clip's frames in order and yields fused (D, E, FusedDepth).
+
+    network: the estimator (D and E of one frame). The parallax cue looks ``window`` frames
+    ahead, so frames are held in a bounded queue (at most window + 1 full frames).
+    """
+
+    def __init__(self, plan: DepthPlan, size: tuple[int, int], network: Network) -> None:
+        """size: the clip's (width, height) in px."""
+        self.plan = plan
+        self.network = network
+        self.fuser = DepthFuser(size[0], plan.fusion)
+        self.people = None
+        self.notes: list[str] = []
+        if "people" in plan.cues:
+            from .people import PeopleDetector
+
+            self.people = PeopleDetector(hfov_deg=plan.hfov_deg)
+        self.parallax = None
+        if "parallax" in plan.cues:
+            from .cues import focal_px
+            from .parallax import ParallaxEstimator
+
+            w, h = size
+            f = focal_px(w, plan.hfov_deg)
+            K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+            self.parallax = ParallaxEstimator(K=K)
+
+    def close(self) -> None:
+        """Free the people models (MediaPipe graphs)."""
+        if self.people is not None:
+            self.people.close()
+
+    def usage(self) -> dict:
+        """How many frames each cue spoke on (for meta.json and the log)."""
+        return dict(self.fuser.used)
+
+    def _parallax_maps(self, frames: Iterable[np.ndarray], queue: deque) -> Iterator[CueMap]:
+        def feed():
+            for f in frames:
+                queue.append(f)
+                yield f
+
+        return self.parallax.maps(feed())
+
+    def frames(self, frames: Iterable[np.ndarray]) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, FusedDepth]]:
+        """(frame, D, E, FusedDepth) per input frame, in order."""
+        if self.parallax is None:
+            for frame in frames:
+                yield (frame, *self._one(frame, None))
+            return
+        queue: deque = deque()
+        for cue in self._parallax_maps(frames, queue):
+            frame = queue.popleft()
+            yield (frame, *self._one(frame, cue))
+
+    def _one(self, frame: np.ndarray, parallax: CueMap | None) -> tuple[np.ndarray, np.ndarray, FusedDepth]:
+        d, e = self.network(frame)
+        cues = [] if parallax is None else [parallax]
+        if self.people is not None:
+            from .people import PeopleModelError
+
+            try:
+                cues.append(self.people(frame).cue)
+            except PeopleModelError as ex:
+                log.warning("depth: the people cue is off from here on (%s)", str(ex).splitlines()[0])
+                self.notes.append(f"people cue off: {str(ex).splitlines()[0]}")
+                self.people.close()
+                self.people = None
+        fused = self.fuser(frame, d, cues)
+        return fused.disparity, e, fused
+
+
+def describe_usage(plan: DepthPlan, usage: dict) -> str:
+    """``parallax on 40 of 48 frames, people on 48, network on all`` for the log."""
+    n = usage.get("frames", 0)
+    parts = [f"{c} on {usage.get(c, 0)} of {n} frames" for c in plan.cues if c not in ("network", "external")]
+    return ", ".join(parts + ["network on all"]) if parts else f"{plan.cues[0]} on all {n} frames"
