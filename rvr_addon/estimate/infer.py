@@ -275,6 +275,22 @@ class EstimateSettings:
     """The camera's horizontal field of view (deg) for the geometric cues; None: a phone's (66)."""
 
 
+def _earlier_depth_cues(folder: Path, key: dict) -> dict:
+    """``{"depth_cues": ...}`` of the cache's meta.json when it was written under ``key`` (a re-run
+    that reuses every frame does not run the cues again and must not drop their record), else {}."""
+    from .cache import KEY_FIELDS
+
+    try:
+        old = json.loads((folder / "meta.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(old, dict) or "depth_cues" not in old:
+        return {}
+    if any(old.get(k) != json.loads(json.dumps(key.get(k))) for k in KEY_FIELDS):
+        return {}
+    return {"depth_cues": old["depth_cues"]}
+
+
 class EstimateJob:
     """Stream a clip through the estimator into its cache (see the module docstring)."""
 
@@ -317,6 +333,7 @@ class EstimateJob:
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
                 "depth_plan": {"method": self.plan.method, "cues": list(self.plan.cues),
                                "reasons": self.plan.reasons}}
+        info.update(_earlier_depth_cues(Path(s.output), key))  # kept when every frame is reused
         self.cache = ClipCache(s.output, key, info)
         self.stream = None
         if len(self.plan.cues) > 1:
