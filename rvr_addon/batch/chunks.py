@@ -3,7 +3,10 @@
 A clip of n frames is cut into chunks [a, b) of ``chunk_frames`` frames (the last one may be
 shorter; a remainder under a quarter of a chunk joins the previous chunk). Per stage:
 
-* estimate (per frame, no context): reads exactly [a, b);
+* estimate: the network alone (``--depth-method network``) or external maps is per frame, no
+  context: reads exactly [a, b). The fused depth system (auto, parallax, people) keeps clip-wide
+  state (parallax scale chain, network fit memory, reference depth), so its estimate is ONE task
+  over the whole clip (:func:`estimate_ranges`); clips still run in parallel;
 * stabilize: the filter's output at t is a function of frames t - P .. t + F only (P past,
   F future frames of the window: causal P = M, F = 0; centred P = M // 2, F = M - P), so
   the chunk reads [a - P, b + F) clipped to the clip and writes [a, b): equal to one pass;
@@ -37,3 +40,9 @@ def chunk_ranges(n_frames: int, chunk_frames: int) -> list[tuple[int, int]]:
 def stabilize_reads(a: int, b: int, n_frames: int, temporal: TemporalSettings) -> tuple[int, int]:
     """Frames [lo, hi) the temporal filter reads to write frames [a, b) exactly."""
     return max(0, a - temporal.past), min(n_frames, b + temporal.future)
+
+
+def estimate_ranges(n_frames: int, chunk_frames: int, clip_wide: bool) -> list[tuple[int, int]]:
+    """The estimate tasks' ranges: one over the whole clip when ``clip_wide`` (the fused depth
+    system, :attr:`.settings.BatchSettings.clip_wide_estimate`), else :func:`chunk_ranges`."""
+    return chunk_ranges(n_frames, 0 if clip_wide else chunk_frames)

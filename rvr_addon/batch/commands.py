@@ -38,6 +38,13 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--depth-offset", type=float, default=0.0, help="D = scale * map + offset")
     g.add_argument("--depth-is-distance", action="store_true", help="the maps hold distance: 1/map before the affine")
     g.add_argument("--no-hdr", action="store_true", help="with --depth-root: E = 0 (no network needed)")
+    g.add_argument("--depth-method", choices=("auto", "parallax", "people", "network", "external"), default="auto",
+                   help="where D comes from (rvr estimate --depth-method; default auto: parallax where the camera "
+                        "translates, people, the network, fused). Fused depth keeps clip-wide state, so a clip's "
+                        "estimate is then one task (not chunked); network and external are chunked")
+    g.add_argument("--hfov", type=float, metavar="DEG",
+                   help="the cameras' horizontal field of view in degrees for the geometric cues (default 66, a "
+                        "phone's main camera)")
     g.add_argument("--temporal-window", choices=("causal", "centred"), default=d.window,
                    help="temporal filter window (rvr stabilize --window; default %(default)s)")
     g.add_argument("-M", "--temporal-frames", dest="m", type=int, default=d.m, metavar="M",
@@ -89,7 +96,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
         window_s=args.look_ahead, causal=args.causal, pull=_pull(args), aperture=args.aperture, scale=args.scale,
         format=args.format, chunk_frames=args.chunk_frames, fps=args.fps, force=args.force, retries=args.retries,
         keep_cache=not args.drop_cache, afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold,
-        afnet_speaker=args.afnet_region == "speaker")
+        afnet_speaker=args.afnet_region == "speaker", depth_method=args.depth_method, hfov_deg=args.hfov)
     cluster = ClusterSettings(scheduler=args.scheduler, workers=args.workers,
                               threads_per_worker=args.threads_per_worker, task_threads=args.task_threads,
                               dashboard=not args.no_dashboard)

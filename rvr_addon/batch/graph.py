@@ -27,7 +27,7 @@ from typing import Iterator
 
 from ..errors import InputError
 from . import stages
-from .chunks import chunk_ranges
+from .chunks import chunk_ranges, estimate_ranges
 from .inputs import clip_names, path_id
 from .report import BatchReport, ClipOutcome
 from .settings import BATCH_DIR, FORMATS, BatchSettings, ClipPlan
@@ -73,6 +73,17 @@ def check_settings(settings: BatchSettings) -> None:
                          "sub-folder of disparity maps per clip, named after the clip")
     if settings.retries < 0:
         raise InputError(f"--retries must be >= 0, got {settings.retries}")
+    from ..depth.system import METHODS, plan_depth
+
+    if settings.depth_method not in METHODS:
+        raise InputError(f"--depth-method {settings.depth_method!r}: choose one of {', '.join(METHODS)}")
+    if settings.depth_root is not None and settings.depth_method not in ("auto", "external"):
+        raise InputError(f"--depth-root gives the depth itself; it cannot be combined with --depth-method "
+                         f"{settings.depth_method} (drop one of them)")
+    if settings.depth_root is None and settings.depth_method == "external":
+        raise InputError("--depth-method external needs --depth-root DIR (per-clip depth or disparity maps)")
+    if settings.depth_method in ("people", "parallax") or settings.hfov_deg is not None:
+        plan_depth(settings.depth_method, None, settings.hfov_deg)  # mediapipe missing, a bad --hfov: fail now
 
 
 def resolve_weights(settings: BatchSettings) -> tuple[Path | None, str]:
@@ -172,7 +183,8 @@ class BatchRunner:
     def _submit_clip(self, plan: ClipPlan) -> list:
         s = self.settings
         ranges = chunk_ranges(plan.frames, s.chunk_frames)
-        est = [self._submit(stages.estimate, plan, f"estimate-{a}", plan, s, self.weights, a, b) for a, b in ranges]
+        est = [self._submit(stages.estimate, plan, f"estimate-{a}", plan, s, self.weights, a, b)
+               for a, b in estimate_ranges(plan.frames, s.chunk_frames, s.clip_wide_estimate)]
         merged = self._submit(stages.merge_estimates, plan, "merge-estimates", plan, est)
         stab = [self._submit(stages.stabilize, plan, f"stabilize-{a}", plan, s, a, b, merged) for a, b in ranges]
         stable = self._submit(stages.merge_stabilized, plan, "merge-stabilized", plan, stab)

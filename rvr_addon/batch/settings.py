@@ -33,6 +33,13 @@ class BatchSettings:
     deletes a clip's cache once its outputs are written (at 1080p a cache frame is tens of
     MB; keep it for clips to be edited further in Blender). afnet_weights, afnet_threshold,
     afnet_speaker: preset learned (``rvr autofocus --afnet-weights/--afnet-threshold/--afnet-region``).
+    depth_method, hfov_deg: ``rvr estimate --depth-method/--hfov`` (:mod:`rvr_addon.depth.system`;
+    default auto: parallax where the camera translates, people, the network, fused; with
+    depth_root the maps are the depth, method auto or external). The fused cues keep clip-wide
+    state (the parallax scale chain, the network fit's memory, the clip's reference depth), so
+    with a method other than network/external a clip's estimate runs as ONE task over the whole
+    clip, whatever chunk_frames says (:attr:`clip_wide_estimate`); clips still run in parallel
+    across workers, and the other stages are chunked as before.
     """
 
     output: Path
@@ -59,6 +66,13 @@ class BatchSettings:
     afnet_weights: Path | None = None
     afnet_threshold: float | None = None
     afnet_speaker: bool = True
+    depth_method: str = "auto"
+    hfov_deg: float | None = None
+
+    @property
+    def clip_wide_estimate(self) -> bool:
+        """The estimate of a clip is one task (fused cues with clip-wide state), not chunked."""
+        return self.depth_root is None and self.depth_method not in ("network", "external")
 
     @property
     def caches(self) -> Path:
@@ -71,6 +85,11 @@ class BatchSettings:
         record = asdict(self)
         for k in ("output", "cache_root", "chunk_frames", "force", "retries", "keep_cache"):
             record.pop(k)
+        if not self.clip_wide_estimate:
+            # the network alone or external maps, what every batch did before the depth system (the
+            # field of view is not used): earlier done markers still match
+            record.pop("depth_method")
+            record.pop("hfov_deg")
         record.update(engine_version=__version__, weights=weights_id)
         return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 

@@ -6,7 +6,7 @@ Every task calls the engine's own job on a frame range; none re-implements a sta
 task               what it runs                                                reads/writes
 =================  ==========================================================  =============
 probe              ``probe_clip`` + source fingerprint; done marker check      the clip
-estimate           ``EstimateJob`` on [a, b)                                   staging cache
+estimate           ``EstimateJob`` on [a, b) (the whole clip for fused depth)   staging cache
 merge_estimates    ``ClipCache.adopt`` of every estimate chunk                 clip cache
 stabilize          ``StabilizeJob`` writing [a, b), reading [a - P, b + F)     staging cache
 merge_stabilized   ``ClipCache.adopt`` of every stabilize chunk                clip cache
@@ -134,7 +134,8 @@ def estimate(plan: ClipPlan, settings: BatchSettings, weights: Path | None, a: i
         job = EstimateJob(EstimateSettings(
             input=plan.source, output=staging, weights=weights, depth=depth_maps(plan, settings),
             depth_scale=settings.depth_scale, depth_offset=settings.depth_offset,
-            depth_is_distance=settings.depth_is_distance, no_hdr=settings.no_hdr, start=a, stop=b, fps=settings.fps),
+            depth_is_distance=settings.depth_is_distance, no_hdr=settings.no_hdr, start=a, stop=b, fps=settings.fps,
+            depth_method=settings.depth_method, hfov_deg=settings.hfov_deg),
             model=None if settings.no_hdr else worker_model(weights))
         job.run(progress=False)
         return {"frames": b - a, "computed": job.computed, "reused": job.reused, "range": (a, b)}

@@ -154,7 +154,8 @@ def test_a_killed_worker_chunk_is_retried_without_corrupting_the_cache(tmp_path,
     out = tmp_path / "out"
     settings = BatchSettings(output=out, weights=data["weights"], temporal=CENTRED, format="exr", chunk_frames=4)
     flag = tmp_path / "killed.txt"
-    plugin = KillOnce(flag, "rvr-estimate-4-", settings.caches / ".staging", "*/estimate_000004_000008/frame_*.exr")
+    # the fused depth (auto) estimates a clip in one task: killed once it has written its first frame
+    plugin = KillOnce(flag, "rvr-estimate-0-", settings.caches / ".staging", "*/estimate_000000_000012/frame_*.exr")
     client.register_plugin(plugin, name=KillOnce.name)
     try:
         before = set(client.nthreads())
@@ -264,3 +265,79 @@ def test_laaf_measured_in_chunks_equals_one_pass_conversation(tmp_path, monkeypa
     assert one.settings["preset_used"] == "conversation" and len(one.nfts) >= 2
     chunked = chunked_laaf(settings, tmp_path / "work", 40, 7)
     assert laaf_outcome(chunked) == laaf_outcome(one)
+
+
+# ------------------------------------------------------------------------------ the depth method
+
+
+def test_depth_method_reaches_the_estimate_and_the_fingerprint(tmp_path, data, monkeypatch):
+    """Fused depth (auto, parallax, people) is one estimate task per clip; network and external are
+    chunked; the method is part of the fingerprint (network keeps the one of earlier batches)."""
+    import dataclasses
+    import hashlib
+
+    from rvr_addon import __version__
+    from rvr_addon.batch import stages
+    from rvr_addon.batch.chunks import estimate_ranges
+    from rvr_addon.batch.graph import check_settings
+
+    auto = BatchSettings(output=tmp_path / "out", weights=data["weights"], chunk_frames=4)
+    network = dataclasses.replace(auto, depth_method="network")
+    external = dataclasses.replace(auto, depth_root=tmp_path, no_hdr=True)
+    assert auto.clip_wide_estimate and not network.clip_wide_estimate and not external.clip_wide_estimate
+    assert estimate_ranges(N, 4, auto.clip_wide_estimate) == [(0, N)]
+    assert estimate_ranges(N, 4, network.clip_wide_estimate) == chunk_ranges(N, 4) == [(0, 4), (4, 8), (8, 12)]
+    fingerprints = {auto.fingerprint("w"), network.fingerprint("w"), dataclasses.replace(auto, hfov_deg=50.0)
+                    .fingerprint("w"), dataclasses.replace(auto, depth_method="parallax").fingerprint("w")}
+    assert len(fingerprints) == 4
+    record = dataclasses.asdict(network)  # the fingerprint of a batch made before the depth system
+    for k in ("output", "cache_root", "chunk_frames", "force", "retries", "keep_cache", "depth_method", "hfov_deg"):
+        record.pop(k)
+    record.update(engine_version=__version__, weights="w")
+    old = hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    assert network.fingerprint("w") == old
+    # bad combinations fail before any cluster starts
+    with pytest.raises(InputError, match="--depth-method external needs --depth-root"):
+        check_settings(dataclasses.replace(auto, depth_method="external"))
+    with pytest.raises(InputError, match="--depth-method parallax"):
+        check_settings(dataclasses.replace(external, depth_method="parallax"))
+    with pytest.raises(InputError, match="--hfov"):
+        check_settings(dataclasses.replace(auto, hfov_deg=0.5))
+    from rvr_addon.depth import system
+
+    monkeypatch.setattr(system, "people_available", lambda: (False, "mediapipe is not installed; pip install it"))
+    with pytest.raises(InputError, match="--depth-method people: mediapipe"):
+        check_settings(dataclasses.replace(auto, depth_method="people"))
+    monkeypatch.undo()
+    # the estimate task runs EstimateJob with the method and the field of view
+    plan = plan_clips([data["a"]], auto, "f" * 16)[0].probed(frames=N)
+    for settings, want in ((network, "network"), (dataclasses.replace(network, depth_method="auto", hfov_deg=50.0),
+                                                  "auto")):
+        r = stages.estimate(plan, settings, data["weights"], 0, N)
+        assert r["computed"] == N
+        staging = stages.staging_root(plan) / f"estimate_000000_{N:06d}"
+        meta = json.loads((staging / "meta.json").read_text())
+        assert meta["depth_plan"]["method"] == want
+        if want == "network":
+            assert meta["depth"] == "network"
+        else:
+            assert meta["depth"]["method"] == "auto" and meta["depth_cues"]["used"]["frames"] == N
+            assert meta["depth"].get("hfov_deg", 50.0) == 50.0
+        shutil.rmtree(staging)
+
+
+def test_cli_batch_depth_method_and_hfov_reach_the_settings(monkeypatch, tmp_path, data):
+    import rvr_addon.batch.graph as graph
+
+    seen = {}
+
+    def fake_run_batch(clips, settings, cluster, progress=True):
+        seen["settings"] = settings
+        raise InputError("stop here")
+
+    monkeypatch.setattr(graph, "run_batch", fake_run_batch)
+    assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--depth-method", "parallax", "--hfov", "72",
+                 "--no-dashboard", "-q"]) == 2
+    assert seen["settings"].depth_method == "parallax" and seen["settings"].hfov_deg == 72.0
+    assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--no-dashboard", "-q"]) == 2
+    assert seen["settings"].depth_method == "auto" and seen["settings"].hfov_deg is None
