@@ -401,6 +401,28 @@ def add_eval_estimator_parser(sub) -> None:
     p.add_argument("--max-pixels", type=int, metavar="P",
                    help="run the network on copies shrunk to at most P pixels (D sliced, E gated at full size); "
                         "to match the resolution it was trained at")
+    p.add_argument("--real-set", type=Path, metavar="DIR",
+                   help="score every real picture with measured depth under DIR (../shared/data/real_depth: "
+                        "Middlebury 2006/2001-3, Kinect); keys estimate.real.<set>.*")
+    p.add_argument("--depth-method", choices=("network", "auto", "people"), default="network",
+                   help="depth of single pictures (--real-set, --real, --motorcycle, --aperture): network (the "
+                        "estimator alone, default) or auto/people (people + network, rvr_addon.depth)")
+    p.add_argument("--weights-per-scene", type=Path, metavar="JSON",
+                   help="with --real-set: JSON {scene: weights file} (leave-scene-out fold models; other scenes "
+                        "use --weights)")
+    p.add_argument("--real-video", action="append", type=Path, default=[], metavar="DIR",
+                   help="score the depth system on a real RGB-D clip with poses (HoloLens / TUM layout, "
+                        "../shared/data/real_video_depth/...); keys estimate.video.<clip>.<method>.* (repeatable)")
+    p.add_argument("--depth-methods", default="auto,network", metavar="M,M",
+                   help="with --real-video: depth methods as in rvr estimate --depth-method (default auto,network)")
+    p.add_argument("--video-frames", type=int, metavar="N", help="with --real-video: at most N frames a clip")
+    p.add_argument("--hfov", type=float, metavar="DEG",
+                   help="field of view for the geometric cues, as rvr estimate --hfov (default: its default)")
+    p.add_argument("--aperture", type=Path, metavar="DIR",
+                   help="fit our renderer to real wide-aperture photos (../shared/data/real_depth/aperture: "
+                        "<scene>/input.jpg + 1_8.jpg or target.jpg) beside a Gaussian blur; keys estimate.aperture.*")
+    p.add_argument("--aperture-size", type=int, default=512, metavar="PX",
+                   help="with --aperture: long side the photos are shrunk to (default 512)")
     p.add_argument("--force", action="store_true", help="replace an existing report folder")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_eval_estimator)
@@ -414,10 +436,17 @@ def cmd_eval_estimator(args: argparse.Namespace) -> int:
     if (args.max_frames is not None and args.max_frames < 1) or args.every < 1 or args.compare_frames < 0 \
             or (args.max_pixels is not None and args.max_pixels < 1):
         raise RvrError("--max-frames, --every and --max-pixels must be >= 1, --compare-frames >= 0")
+    if (args.video_frames is not None and args.video_frames < 2) or args.aperture_size < 32:
+        raise RvrError("--video-frames must be >= 2 and --aperture-size >= 32")
+    methods = [m.strip() for m in args.depth_methods.split(",") if m.strip()]
     summary = evaluate(EvalSettings(output=args.output, weights=args.weights, data=list(args.data),
                                     motorcycle=args.motorcycle, max_frames=args.max_frames, every=args.every,
                                     compare_frames=args.compare_frames, force=args.force,
-                                    max_pixels=args.max_pixels, real=[tuple(p) for p in args.real]),
+                                    max_pixels=args.max_pixels, real=[tuple(p) for p in args.real],
+                                    real_set=args.real_set, depth_method=args.depth_method,
+                                    weights_per_scene=args.weights_per_scene, real_video=list(args.real_video),
+                                    depth_methods=methods, video_frames=args.video_frames, hfov_deg=args.hfov,
+                                    aperture=args.aperture, aperture_size=args.aperture_size),
                        progress=not args.quiet)
     print(json.dumps(summary, indent=1, sort_keys=True))
     print(f"wrote {args.output}")

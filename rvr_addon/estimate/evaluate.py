@@ -301,6 +301,24 @@ class EvalSettings:
     and E gated at full resolution; ``rvr estimate``'s default when None)."""
     real: list[tuple[Path, Path]] = field(default_factory=list)
     """Real pictures with ground truth: (image, disparity or inverse-depth map) pairs."""
+    real_set: Path | None = None
+    """A real_depth folder: every picture of real_data.find_real_pictures (evaluate_real)."""
+    depth_method: str = "network"
+    """Single pictures (--real-set, --real, --motorcycle, --aperture): network | auto | people."""
+    weights_per_scene: Path | None = None
+    """JSON {scene: weights file} for --real-set (leave-scene-out fold models)."""
+    real_video: list[Path] = field(default_factory=list)
+    """Real RGB-D clips with poses (HoloLens / TUM layout)."""
+    depth_methods: list[str] = field(default_factory=lambda: ["auto", "network"])
+    """--real-video: the depth methods run on each clip."""
+    video_frames: int | None = None
+    """--real-video: at most this many frames of a clip (None: all)."""
+    hfov_deg: float | None = None
+    """The geometric cues' field of view (rvr estimate --hfov; None: its default)."""
+    aperture: Path | None = None
+    """A folder of real aperture pairs (vabd_*/input + 1_8, ebb_*/input + target)."""
+    aperture_size: int = 512
+    """--aperture: long side (px) both photos are shrunk to."""
 
 
 def _check_target(report: Path, force: bool) -> None:
@@ -329,9 +347,10 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
     from .infer import Estimator, default_weights, load_estimator
 
     s = settings
-    if not s.data and not s.motorcycle and not s.real:
-        raise InputError("nothing to evaluate: pass --data HELDOUT_DATASET (harness clips), --motorcycle and/or "
-                         "--real IMAGE DISPARITY")
+    if not s.data and not s.motorcycle and not s.real and s.real_set is None and not s.real_video \
+            and s.aperture is None:
+        raise InputError("nothing to evaluate: pass --data HELDOUT_DATASET (harness clips), --motorcycle, "
+                         "--real IMAGE DISPARITY, --real-set DIR, --real-video DIR and/or --aperture DIR")
     pairs = [real_pair(Path(i), Path(d)) for i, d in s.real]  # bad files fail before any work
     seen: dict[str, int] = {}
     for k, (name, rgb, gt) in enumerate(pairs):  # two pictures of the same stem: name_2, name_3, ...
@@ -342,6 +361,10 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
     _check_target(report, s.force)
     model = load_estimator(s.weights if s.weights is not None else default_weights())
     est = Estimator(model, max_pixels=s.max_pixels)
+    from .evaluate_real import picture_depth
+
+    depth = picture_depth(s.depth_method, est, s.hfov_deg)  # single pictures (network: est itself)
+    extra_md: list[str] = []
     summary: dict[str, float] = {}
     rows: list[dict] = []
     skipped: list[str] = []
@@ -411,7 +434,7 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
                 summary["estimate.hdr_log_mse_saturated_no_recovery"] = sq_none / n_sat
         if s.motorcycle:
             left, disp = motorcycle()
-            d, _ = est(left)
+            d, _ = depth(left)
             valid = np.isfinite(disp)
             summary["estimate.motorcycle.affine_invariant_error"] = affine_invariant_error(d, disp, valid)
             summary["estimate.motorcycle.baseline_error"] = affine_invariant_error(vertical_ramp(*disp.shape), disp,
@@ -420,7 +443,7 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
             summary["estimate.motorcycle.valid_fraction"] = float(valid.mean())
             comparison_image(left, disp, d, tmp / "compare_motorcycle.png", show_raw=False)
         for name, rgb, gt in pairs:
-            d, _ = est(rgb)
+            d, _ = depth(rgb)
             valid = np.isfinite(gt)
             key = f"estimate.real.{name}"
             summary[f"{key}.affine_invariant_error"] = affine_invariant_error(d, gt, valid)
@@ -428,13 +451,39 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
             summary[f"{key}.corr"] = pearson(d, gt, valid)
             summary[f"{key}.valid_fraction"] = float(valid.mean())
             comparison_image(rgb, gt, d, tmp / f"compare_real_{name}.png", show_raw=False)
+        extra_md += _evaluate_real_material(s, est, depth, summary, tmp, progress)
         summary["estimate.eval_s"] = time.perf_counter() - t_start
-        _write_report(tmp, summary, rows, skipped, model, s)
+        _write_report(tmp, summary, rows, skipped, model, s, extra_md, [p[0] for p in pairs])
         replace_folder(tmp, report)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return summary
+
+
+def _evaluate_real_material(s: EvalSettings, est, depth, summary: dict, folder: Path, progress: bool) -> list[str]:
+    """--real-set, --real-video and --aperture (:mod:`.evaluate_real`): keys into ``summary``,
+    pictures into ``folder``; returns the README sections."""
+    from . import evaluate_real as er
+
+    md: list[str] = []
+    if s.real_set is not None:
+        weights_map = er.load_weights_map(s.weights_per_scene) if s.weights_per_scene is not None else None
+        networks = er.SceneNetworks(est, str(est.model.path), weights_map, s.max_pixels)
+        keys, rows, lines = er.evaluate_real_set(s.real_set, networks, s.depth_method, s.hfov_deg, folder, progress)
+        summary.update(keys)
+        (folder / "real_views.json").write_text(json.dumps(rows, indent=1))
+        md += lines
+    for clip in s.real_video:
+        keys, lines = er.evaluate_video_clip(clip, list(s.depth_methods), est, s.hfov_deg, s.video_frames, folder,
+                                             progress=progress)
+        summary.update(keys)
+        md += lines
+    if s.aperture is not None:
+        keys, lines = er.evaluate_aperture(s.aperture, depth, s.aperture_size, folder, progress)
+        summary.update(keys)
+        md += lines
+    return md
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -443,7 +492,8 @@ def _fmt(v: float | None, digits: int = 3) -> str:
     return f"{v:.{digits}g}"
 
 
-def _write_report(folder: Path, summary: dict, rows: list[dict], skipped: list[str], model, s: EvalSettings) -> None:
+def _write_report(folder: Path, summary: dict, rows: list[dict], skipped: list[str], model, s: EvalSettings,
+                  extra_md: list[str] | None = None, real_names: list[str] | None = None) -> None:
     g = summary.get
     (folder / "summary.json").write_text(json.dumps(summary, indent=1, sort_keys=True))
     (folder / "frames.json").write_text(json.dumps({"frames": rows, "skipped": skipped}, indent=1))
@@ -478,12 +528,16 @@ def _write_report(folder: Path, summary: dict, rows: list[dict], skipped: list[s
                "|---|---|",
                f"| ours | {_fmt(g('estimate.motorcycle.affine_invariant_error'))} |",
                f"| vertical ramp (nearer toward the bottom) | {_fmt(g('estimate.motorcycle.baseline_error'))} |", ""]
-    for name in sorted({k.split(".")[2] for k in summary if k.startswith("estimate.real.")}):
+    for name in sorted(real_names if real_names is not None else
+                       {k.split(".")[2] for k in summary if k.startswith("estimate.real.")}):
         key = f"estimate.real.{name}"
         md += [f"Real picture `{name}` ({100 * g(key + '.valid_fraction', 0):.0f}% valid GT pixels):", "",
                "| affine-invariant error (1 = a constant) | value |", "|---|---|",
                f"| ours | {_fmt(g(key + '.affine_invariant_error'))} |",
                f"| vertical ramp (nearer toward the bottom) | {_fmt(g(key + '.baseline_error'))} |", ""]
+    md += list(extra_md or [])
+    if s.depth_method != "network":
+        md += [f"Single pictures (--real, --motorcycle, --real-set, --aperture) ran depth method `{s.depth_method}`.", ""]
     md += ["Pictures: `compare_*.png` = input | GT D | ours D as predicted (GT colour range) | ours D after the "
            "least-squares scale + shift (viridis over GT's 2-98th percentiles; black = no GT).", "",
            "How to read it: the disparity figures are fitted per frame because focus and aperture rescale and "
