@@ -186,6 +186,16 @@ def add_train_parser(sub) -> None:
     p.add_argument("--data", action="append", type=Path, default=[], metavar="DIR",
                    help="a folder of harness clips (`python -m sintel_eval generate`) and/or procedural datasets "
                         "(`rvr procedural`) (repeatable)")
+    p.add_argument("--real", action="append", type=Path, default=[], metavar="DIR",
+                   help="real pictures with measured depth (a real_depth folder: Middlebury, Kinect; D supervised up "
+                        "to scale and shift, E kept near the --init-from weights' own) (repeatable)")
+    p.add_argument("--real-exclude", action="append", default=[], metavar="SCENE",
+                   help="leave this scene of --real out (e.g. middlebury2006/Aloe or Aloe; repeatable): "
+                        "leave-scene-out validation")
+    p.add_argument("--real-share", type=float, default=0.5, metavar="P",
+                   help="share of draws from --real pictures when there are other sources too (default 0.5)")
+    p.add_argument("--hdr-teacher", type=Path, metavar="WEIGHTS",
+                   help="weights whose HDR output E the real pictures keep (default: --init-from)")
     p.add_argument("--user-photos", action="append", type=Path, default=[], metavar="DIR",
                    help="folder of bracketed photos: NAME_small.jpg + NAME_large.jpg [+ NAME_medium.jpg] "
                         "[+ NAME.json], or one sub-folder per shot (repeatable)")
@@ -272,7 +282,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         resume=args.resume, photo_max_side=args.photo_max_side, align_motion=args.align, gt_share=args.gt_share,
         procedural_share=args.procedural_share, degrade=args.degrade, expose=args.expose,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
-        model=EstimatorConfig(row_prior=args.row_prior))
+        model=EstimatorConfig(row_prior=args.row_prior), real=args.real, real_exclude=tuple(args.real_exclude),
+        real_share=args.real_share, hdr_teacher=args.hdr_teacher)
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
     run_training("train", trainer, args.output, args.quiet)

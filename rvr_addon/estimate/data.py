@@ -124,7 +124,7 @@ class SampleSource:
         px at the native width; ``gt/hdr`` EXR, linear radiance R, G, B), None for photos.
     unsupervised_ids: object IDs (channel ID of gt_disparity) whose disparity is not supervised.
     disparity_invariant: the ground-truth D is known only up to a positive scale and a shift
-        (procedural frames: no lens); the loss fits them per sample.
+        (procedural frames: no lens; real pictures); the loss fits them per sample.
     """
 
     name: str
@@ -137,6 +137,9 @@ class SampleSource:
     gt_hdr: Path | None = None
     unsupervised_ids: tuple[int, ...] = ()
     disparity_invariant: bool = False
+    truth_kind: str | None = None
+    """Real pictures (origin ``real``): how ``gt_disparity`` stores its ground truth
+    (:class:`.real_data.RealPicture`); None for the harness's EXR."""
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -504,6 +507,46 @@ def procedural_sources(folder: Path, report: SkipReport) -> list[SampleSource]:
     return found
 
 
+def real_sources(root: str | Path, report: SkipReport, exclude: Iterable[str] = ()) -> list[SampleSource]:
+    """Kind ``gt`` sources of the real pictures with measured depth under ``root``
+    (:mod:`.real_data`; ``rvr train --real``), D supervised up to a positive scale and a shift.
+
+    exclude: scenes to leave out (leave-scene-out validation), as ``set/scene`` or the scene's
+    folder name (``middlebury2006/Aloe`` or ``Aloe``); a name that matches nothing is an error."""
+    from .real_data import find_real_pictures
+
+    pictures = find_real_pictures(root)
+    wanted = {e.strip().lower() for e in exclude if e.strip()}
+    scenes = {p.scene.lower() for p in pictures} | {p.scene.split("/")[-1].lower() for p in pictures}
+    unknown = sorted(wanted - scenes)
+    if unknown:
+        raise InputError(f"--real-exclude {', '.join(unknown)}: no such scene under {root} (scenes are named like "
+                         f"{pictures[0].scene} or {pictures[0].scene.split('/')[-1]})")
+    found = []
+    for pic in pictures:
+        if pic.scene.lower() in wanted or pic.scene.split("/")[-1].lower() in wanted:
+            continue
+        try:
+            width = _image_width(pic.image)
+        except InputError as ex:
+            report.add("unreadable real picture", f"{pic.image}: {ex}; skipped")
+            continue
+        found.append(SampleSource(pic.name, "real", pic.image, {}, width, {}, pic.truth,
+                                  disparity_invariant=True, truth_kind=pic.truth_kind))
+    return found
+
+
+def real_target(path: Path, truth_kind: str, size: tuple[int, int]) -> np.ndarray:
+    """The training target of a real picture at ``size`` (w, h): ``-q / median(q)`` of its inverse
+    depth q (our D grows away from the camera; the median makes every picture's target unitless,
+    so Middlebury's disparity in px and a Kinect's 1/mm weigh alike), NaN where unknown."""
+    from .real_data import RealPicture, read_inverse_depth
+
+    q = read_inverse_depth(RealPicture(path.stem, path.parent.name, path, path, truth_kind, ""))
+    q = q / float(np.nanmedian(q))
+    return resize_disparity(-q, size)
+
+
 def training_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False) -> list[SampleSource]:
     """Sources of every harness clip and procedural dataset under ``root`` (``rvr train --data``).
 
@@ -840,6 +883,8 @@ class Augment:
     gt_share: float = 0.5
     procedural_share: float = 0.0
     """Share of draws from procedural frames (:mod:`.procedural`) when there are other sources too."""
+    real_share: float = 0.5
+    """Share of draws from real pictures with measured depth when there are other sources too."""
     degrade: float = 0.0
     """Probability that a ground-truth-only sample's input is degraded like phone footage
     (:func:`degrade_like_footage`: blur, sensor noise, JPEG); its targets are unchanged."""
@@ -860,8 +905,9 @@ class TrainingSet:
         self.augment = augment
         self.report = report if report is not None else SkipReport()
         self._bad: set[str] = set()
+        self._real = [s for s in self.sources if s.origin == "real"]
         self._procedural = [s for s in self.sources if s.origin == "procedural"]
-        self._gt_only = [s for s in self.sources if s.kinds == ("gt",) and s.origin != "procedural"]
+        self._gt_only = [s for s in self.sources if s.kinds == ("gt",) and s.origin not in ("procedural", "real")]
         self._rendered = [s for s in self.sources if s.kinds != ("gt",)]
 
     def __len__(self) -> int:
@@ -873,21 +919,27 @@ class TrainingSet:
         kinds = Counter(k for s in self.sources for k in s.kinds)
         clips = sorted({s.name.split("/")[0] for s in self.sources if s.origin == "harness"})
         return {"harness_frames": by_origin.get("harness", 0), "harness_clips": len(clips),
-                "procedural_frames": by_origin.get("procedural", 0),
+                "procedural_frames": by_origin.get("procedural", 0), "real_pictures": by_origin.get("real", 0),
                 "photo_shots": by_origin.get("photos", 0), "kinds": dict(kinds),
                 "skipped": dict(self.report.counts)}
 
     def draw(self, rng: np.random.Generator, retries: int = 20) -> TrainSample:
-        """A random sample: a procedural frame with probability ``augment.procedural_share`` when
+        """A random sample: a real picture with probability ``augment.real_share`` when there are
+        other sources too; else a procedural frame with probability ``augment.procedural_share`` when
         there are other sources too; else a ground-truth-only harness frame with probability
         ``augment.gt_share`` when both kinds exist, else uniform over the others; then uniform over
         the source's kinds."""
         others = self._gt_only + self._rendered
+        synthetic = self._procedural + others
         for _ in range(retries):
             pool = self.sources
-            if self._procedural and others:
+            if self._real and synthetic and float(rng.random()) < self.augment.real_share:
+                pool = self._real
+            elif self._real and synthetic:
+                pool = synthetic
+            if pool is not self._real and self._procedural and others:
                 pool = self._procedural if float(rng.random()) < self.augment.procedural_share else others
-            if pool is not self._procedural and self._gt_only and self._rendered:
+            if pool is not self._procedural and pool is not self._real and self._gt_only and self._rendered:
                 pool = self._gt_only if float(rng.random()) < self.augment.gt_share else self._rendered
             src = pool[int(rng.integers(len(pool)))]
             if src.name in self._bad:
@@ -951,7 +1003,9 @@ class TrainingSet:
         if kind == "gt" and aug.degrade > 0 and float(rng.random()) < aug.degrade:
             inp = degrade_like_footage(inp, rng)
         gt_d = gt_e = sat = None
-        if src.gt_disparity is not None:
+        if src.gt_disparity is not None and src.truth_kind is not None:  # a real picture: unitless, scale-free
+            gt_d = crop_flip(real_target(src.gt_disparity, src.truth_kind, size))
+        elif src.gt_disparity is not None:
             gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h), src.unsupervised_ids), size)
                              * px_scale)
         if hdr is not None:

@@ -511,6 +511,14 @@ def exponent_losses(exponent: torch.Tensor, target: torch.Tensor, saturated: tor
     return l_e, l_e0
 
 
+def exponent_keep_loss(exponent: torch.Tensor, teacher: torch.Tensor) -> torch.Tensor:
+    """L_keep: mean |50 E - 50 E_teacher| over every pixel and channel (natural-log radiance gain).
+
+    Pictures without HDR ground truth (real pictures with measured depth) keep the HDR recovery
+    the network had before: its E on the same input, from the frozen weights it started from."""
+    return (K_HDR * (exponent - teacher)).abs().mean()
+
+
 def supervised_loss(disparity_rel: torch.Tensor, gt_disparity_rel: torch.Tensor | None, exponent: torch.Tensor,
                     gt_exponent: torch.Tensor | None, saturated: torch.Tensor | None, e_max: float,
                     weights: LossWeights = LossWeights(), scale_free: bool = False) -> LossResult:

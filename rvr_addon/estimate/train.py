@@ -46,10 +46,10 @@ from ..render.aperture import ApertureSpec
 from ..render.model import K_HDR, hdr_radiance
 from ..training_run import TrainingRun, previous_init_record, save_png, save_weights
 from ..training_run import deferred_interrupt  # noqa: F401 - re-exported: callers import it from here
-from .data import Augment, SkipReport, TrainingSet, TrainSample, photo_sources, training_sources
+from .data import Augment, SkipReport, TrainingSet, TrainSample, photo_sources, real_sources, training_sources
 from .losses import (
-    LossResult, LossWeights, VGG19Features, fit_scale_shift, load_vgg19, render_member, supervised_loss, to_display,
-    total_loss,
+    LossResult, LossWeights, VGG19Features, exponent_keep_loss, fit_scale_shift, load_vgg19, render_member,
+    supervised_loss, to_display, total_loss,
 )
 from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, disparity_to_px, grow_state_dict
 
@@ -57,9 +57,10 @@ CHECKPOINT_FORMAT = "rvr-laaf-estimator-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-estimator/1"
 log = logging.getLogger(__name__)
 LOG_FIELDS = ("iteration", "wall_s", "total", "rend", "adjust", "smooth", "pix", "ssim", "grad", "vgg", "grad_norm",
-              "kind", "sample", "sup", "sup_d", "sup_dgrad", "sup_e", "sup_e0", "d_rms_px", "d_corr", "rss_mb")
+              "kind", "sample", "sup", "sup_d", "sup_dgrad", "sup_e", "sup_e0", "sup_keep", "d_rms_px", "d_corr",
+              "rss_mb")
 """Columns of loss_log.csv. ``sup*``: the supervised terms (blank for samples without ground
-truth); ``d_rms_px``: RMS of D - D_gt in px at the native width and ``d_corr`` their Pearson
+truth; ``sup_keep``: the HDR teacher term of real pictures); ``d_rms_px``: RMS of D - D_gt in px at the native width and ``d_corr`` their Pearson
 correlation (monitoring only, no gradient; harness samples); ``rss_mb``: the process's resident
 memory after the step (MiB; a leak shows as a rising column)."""
 
@@ -99,13 +100,22 @@ class TrainSettings:
     model: EstimatorConfig = field(default_factory=EstimatorConfig)
     ignore_prints: bool = False
     """Leave the harness's photo prints out of the disparity supervision (:mod:`.data`)."""
+    real: list[Path] = field(default_factory=list)
+    """Folders of real pictures with measured depth (:mod:`.real_data`; ``--real``)."""
+    real_exclude: tuple[str, ...] = ()
+    """Scenes of ``real`` left out (leave-scene-out validation; ``--real-exclude``)."""
+    real_share: float = 0.5
+    """Share of draws from real pictures when there are other sources too (``--real-share``)."""
+    hdr_teacher: Path | None = None
+    """Weights whose E real pictures keep (they have no HDR truth); None with ``real``: ``init_from``."""
     init_from: Path | None = None
     """A new run starts from these weights (estimator.pt or a checkpoint) instead of a random init;
     its architecture is theirs, with ``model.row_prior`` switched on if asked (zero-initialised)."""
 
 
 def sample_loss(model: EstimatorNet, sample: TrainSample, weights: LossWeights,
-                vgg: VGG19Features | None = None, spec: ApertureSpec | None = None) -> LossResult:
+                vgg: VGG19Features | None = None, spec: ApertureSpec | None = None,
+                teacher: EstimatorNet | None = None) -> LossResult:
     """Eq. 7 for one drawn sample: predict, render the target(s) through our model, compare.
 
     The network's D_rel becomes px at the working resolution with the sample's frame width
@@ -116,7 +126,7 @@ def sample_loss(model: EstimatorNet, sample: TrainSample, weights: LossWeights,
     out = model(image)
     d_px = disparity_to_px(out.disparity_rel, sample.frame_width)
     if sample.kind == "gt":  # a ground-truth-only frame: the supervised terms alone (no render)
-        return _supervised_only(model, out, sample, weights)
+        return _supervised_only(model, out, sample, weights, image if teacher is not None else None, teacher)
     radiance = hdr_radiance(srgb_to_linear(image), out.exponent)
     target = torch.from_numpy(sample.target).permute(2, 0, 1)[None]
     rendered = to_display(render_member(radiance, d_px, sample.alpha, sample.beta, spec))
@@ -145,20 +155,34 @@ def sample_loss(model: EstimatorNet, sample: TrainSample, weights: LossWeights,
     return result
 
 
-def _supervised_only(model: EstimatorNet, out, sample: TrainSample, weights: LossWeights) -> LossResult:
-    """Loss of a kind-``gt`` sample: ``w_sup`` times the supervised terms (see :mod:`.losses`)."""
+def _supervised_only(model: EstimatorNet, out, sample: TrainSample, weights: LossWeights,
+                     image: torch.Tensor | None = None, teacher: EstimatorNet | None = None) -> LossResult:
+    """Loss of a kind-``gt`` sample: ``w_sup`` times the supervised terms (see :mod:`.losses`).
+
+    A sample without HDR ground truth (a real picture) gets no E terms; with a ``teacher`` (the
+    frozen weights the run started from) and the sample's ``image``, its E is kept near the
+    teacher's instead (:func:`.losses.exponent_keep_loss`, weight ``w_sup``)."""
     if weights.supervised <= 0:
         raise InputError(f"sample {sample.name} has ground truth only (a clip without training sidecars), which "
                          "needs --supervised-weight > 0; raise it or leave such clips out of --data")
     gt_d = torch.from_numpy(sample.gt_disparity)[None, None] * (DISPARITY_PERCENT / sample.frame_width)
-    gt_e = torch.from_numpy(sample.gt_exponent).permute(2, 0, 1)[None]
-    sat = torch.from_numpy(sample.saturated)[None, None]
+    gt_e = sat = None
+    if sample.gt_exponent is not None and sample.saturated is not None:
+        gt_e = torch.from_numpy(sample.gt_exponent).permute(2, 0, 1)[None]
+        sat = torch.from_numpy(sample.saturated)[None, None]
     sup = supervised_loss(out.disparity_rel, gt_d, out.exponent, gt_e, sat, model.config.e_max, weights,
                           scale_free=sample.disparity_invariant)
     parts = dict(sup.parts)
+    total = sup.total
+    if gt_e is None and teacher is not None and image is not None:
+        with torch.no_grad():
+            kept = teacher(image).exponent
+        keep = exponent_keep_loss(out.exponent, kept)
+        total = total + keep
+        parts["sup_keep"] = keep.item()
     parts.update(disparity_metrics(out.disparity_rel.detach(), gt_d, sample.frame_width, sample.native_width,
                                    fitted=sample.disparity_invariant))
-    total = weights.supervised * sup.total
+    total = weights.supervised * total
     parts["total"] = total.item()
     return LossResult(total, parts)
 
@@ -199,8 +223,11 @@ class Trainer(TrainingRun):
 
     def __init__(self, settings: TrainSettings, progress: bool = False) -> None:
         s = self.settings = settings
-        if not s.data and not s.user_photos:
-            raise InputError("no training data: pass --data DATASET (harness clips) and/or --user-photos DIR")
+        if not s.data and not s.user_photos and not s.real:
+            raise InputError("no training data: pass --data DATASET (harness clips), --real DIR (real pictures with "
+                             "measured depth, e.g. ../shared/data/real_depth) and/or --user-photos DIR")
+        if not 0.0 <= s.real_share <= 1.0:
+            raise InputError(f"real_share (--real-share) is a probability in [0, 1], got {s.real_share}")
         if not 0.0 <= s.whole_frame <= 1.0:
             raise InputError(f"whole_frame (--whole-frame) is a probability in [0, 1], got {s.whole_frame}")
         if not 0.0 <= s.gt_share <= 1.0:
@@ -222,12 +249,14 @@ class Trainer(TrainingRun):
         sources = []
         for root in s.data:
             sources += training_sources(root, self.report, ignore_prints=s.ignore_prints)
+        for root in s.real:
+            sources += real_sources(root, self.report, s.real_exclude)
         for folder in s.user_photos:
             sources += photo_sources(folder, self.run_dir / "photos", self.report, max_side=s.photo_max_side,
                                      motion=s.align_motion, progress=progress)
         self.data = TrainingSet(sources, Augment(crop=s.crop, scale_range=s.scale_range, whole_frame=s.whole_frame,
                                                  gt_share=s.gt_share, procedural_share=s.procedural_share,
-                                                 degrade=s.degrade, expose=s.expose),
+                                                 degrade=s.degrade, expose=s.expose, real_share=s.real_share),
                                 self.report)
         self.vgg = load_vgg19(s.vgg19) if s.vgg19 is not None else None
         model_cfg = s.model
@@ -247,6 +276,21 @@ class Trainer(TrainingRun):
             return net
 
         self._start(build, checkpoint)
+        self.teacher = self._load_teacher()
+
+    def _load_teacher(self) -> EstimatorNet | None:
+        """The frozen net whose E real pictures keep (``hdr_teacher``, else ``init_from``)."""
+        s = self.settings
+        path = s.hdr_teacher if s.hdr_teacher is not None else (s.init_from if s.real else None)
+        if path is None or not s.real:
+            return None
+        from .infer import load_estimator
+
+        net = load_estimator(path).net
+        net.eval()
+        for p in net.parameters():
+            p.requires_grad_(False)
+        return net
 
     def _plot_losses(self, out: Path) -> None:
         plot_losses(self.log_path, out)
@@ -258,7 +302,7 @@ class Trainer(TrainingRun):
         kinds, names = [], []
         for _ in range(s.batch):
             sample = self.data.draw(self.rng)
-            res = sample_loss(self.model, sample, s.weights, self.vgg)
+            res = sample_loss(self.model, sample, s.weights, self.vgg, teacher=self.teacher)
             (res.total / s.batch).backward()
             for k, v in res.parts.items():  # floats only: no tensor (and no graph) outlives the step
                 sums[k] = sums.get(k, 0.0) + float(v)
@@ -282,7 +326,9 @@ class Trainer(TrainingRun):
             "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop,
             "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share,
             "procedural_share": s.procedural_share, "degrade": s.degrade, "expose": s.expose, "seed": s.seed,
-            "ignore_prints": s.ignore_prints,
+            "ignore_prints": s.ignore_prints, "real": [str(p) for p in s.real],
+            "real_exclude": list(s.real_exclude), "real_share": s.real_share,
+            "hdr_teacher": str(s.hdr_teacher) if s.hdr_teacher else (str(s.init_from) if s.real and s.init_from else None),
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),
             "parameters": self.model.parameter_count(), "training_data": self.data.summary(),

@@ -1,0 +1,146 @@
+"""Real pictures with measured depth: reading (estimate.real_data) and training on them (rvr train --real)."""
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from rvr_addon.errors import InputError
+from rvr_addon.estimate.data import Augment, SkipReport, TrainingSet, real_sources, real_target
+from rvr_addon.estimate.real_data import find_real_pictures, read_inverse_depth, scene_folds
+
+SHARED = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real_depth"
+
+
+def _write_scene(root: Path, name: str, seed: int, size=(64, 48)) -> None:
+    """A Middlebury-2006-like scene: two views, a near square on a far backdrop (disparity px)."""
+    rng = np.random.default_rng(seed)
+    d = root / "middlebury2006" / name
+    d.mkdir(parents=True)
+    w, h = size
+    for view, disp in (("view1", "disp1"), ("view5", "disp5")):
+        img = (rng.random((h, w, 3)) * 255).astype(np.uint8)
+        gt = np.full((h, w), 20, np.uint8)
+        gt[10:30, 20:44] = 80
+        gt[0, :] = 0  # unknown
+        cv2.imwrite(str(d / f"{view}.png"), img)
+        cv2.imwrite(str(d / f"{disp}.png"), gt)
+
+
+@pytest.fixture
+def real_root(tmp_path: Path) -> Path:
+    root = tmp_path / "real_depth"
+    for i, name in enumerate(("Alpha", "Beta", "Gamma")):
+        _write_scene(root, name, i)
+    kin = root / "kinect"
+    kin.mkdir()
+    cv2.imwrite(str(kin / "ch7_1.png"), np.full((48, 64, 3), 90, np.uint8))
+    depth = np.full((48, 64), 10000, np.uint16)  # 2 m
+    depth[:, :32] = 5000  # 1 m: nearer
+    depth[0, 0] = 0
+    cv2.imwrite(str(kin / "ch7_1_depth.png"), depth)
+    return root
+
+
+def test_listing_and_inverse_depth(real_root: Path):
+    pics = find_real_pictures(real_root)
+    assert [p.name for p in pics][:2] == ["kinect/ch7_1", "middlebury2006/Alpha/view1"]
+    assert len(pics) == 7 and len({p.scene for p in pics}) == 4
+    kin = pics[0]
+    q = read_inverse_depth(kin)
+    assert np.isnan(q[0, 0])
+    assert q[5, 5] == pytest.approx(2 * q[5, 40])  # 1 m is twice the inverse depth of 2 m
+    mid = read_inverse_depth(pics[1])
+    assert np.isnan(mid[0]).all() and mid[20, 30] == 80 and mid[40, 5] == 20
+
+
+def test_sun_and_nyu_conventions(tmp_path: Path):
+    kin = tmp_path / "kinect"
+    kin.mkdir()
+    cv2.imwrite(str(kin / "RGBD_other_formats_SUN_color.jpg"), np.zeros((8, 8, 3), np.uint8))
+    cv2.imwrite(str(kin / "RGBD_other_formats_NYU_color.ppm"), np.zeros((8, 8, 3), np.uint8))
+    sun = np.full((8, 8), 2000, np.uint16)  # mm
+    sun[:, 4:] = 4000
+    cv2.imwrite(str(kin / "RGBD_other_formats_SUN_depth.png"), ((sun << 3) | (sun >> 13)).astype(np.uint16))
+    nyu = np.full((8, 8), 900, np.uint16)
+    nyu[:, 4:] = 1000  # farther (1092.5 - raw smaller)
+    cv2.imwrite(str(kin / "RGBD_other_formats_NYU_depth.pgm"), nyu.byteswap())
+    pics = {p.name: p for p in find_real_pictures(kin)}
+    q_sun = read_inverse_depth(pics["kinect/RGBD_other_formats_SUN"])
+    assert q_sun[0, 0] == pytest.approx(2 * q_sun[0, 6])
+    q_nyu = read_inverse_depth(pics["kinect/RGBD_other_formats_NYU"])
+    assert q_nyu[0, 0] == pytest.approx(1092.5 - 900) and q_nyu[0, 6] == pytest.approx(1092.5 - 1000)
+
+
+def test_exclusion_and_folds(real_root: Path):
+    report = SkipReport()
+    all_src = real_sources(real_root, report)
+    assert len(all_src) == 7 and all(s.origin == "real" and s.disparity_invariant for s in all_src)
+    kept = real_sources(real_root, report, exclude=["Alpha", "middlebury2006/Beta"])
+    assert sorted({s.name.split("/")[1] for s in kept if s.name.startswith("middlebury")}) == ["Gamma"]
+    with pytest.raises(InputError, match="no such scene"):
+        real_sources(real_root, report, exclude=["Motorbike"])
+    folds = scene_folds(find_real_pictures(real_root), 2)
+    assert sorted(sum(folds, [])) == sorted({p.scene for p in find_real_pictures(real_root)})
+    assert not set(folds[0]) & set(folds[1])
+
+
+def test_target_sign_and_scale(real_root: Path):
+    src = next(s for s in real_sources(real_root, SkipReport()) if s.name.endswith("Alpha/view1"))
+    t = real_target(src.gt_disparity, src.truth_kind, (64, 48))
+    assert np.isnan(t[0]).all()
+    # nearer (larger disparity) -> smaller D; unitless: the median inverse depth maps to -1
+    assert t[20, 30] < t[40, 5]
+    assert np.nanmedian(t) == pytest.approx(-1.0)
+    ts = TrainingSet(real_sources(real_root, SkipReport()), Augment(crop=32))
+    sample = ts.draw(np.random.default_rng(0))
+    assert sample.kind == "gt" and sample.disparity_invariant and sample.gt_exponent is None
+    assert sample.gt_disparity.shape == sample.image.shape[:2]
+
+
+def test_train_on_real_keeps_hdr_of_teacher(real_root: Path, tmp_path: Path):
+    """`rvr train --real` from weights: D is supervised up to scale, E is kept near the start's."""
+    import torch
+
+    from rvr_addon.estimate.train import Trainer, TrainSettings, export_weights
+    from rvr_addon.estimate.unet import EstimatorConfig, EstimatorNet
+
+    torch.manual_seed(0)
+    start = tmp_path / "start.pt"
+    net = EstimatorNet(EstimatorConfig(widths=(8, 16, 16, 16)))
+    export_weights(net, start, iterations=0, wall_time_s=0.0, training={})
+    run = tmp_path / "run"
+    trainer = Trainer(TrainSettings(run_dir=run, real=[real_root], real_exclude=("Gamma",), iterations=3, batch=2,
+                                    crop=32, init_from=start, checkpoint_every=10))
+    assert trainer.teacher is not None
+    assert trainer.data.summary()["real_pictures"] == 5
+    while trainer.step():
+        pass
+    trainer.finish()
+    rows = list(csv.DictReader((run / "loss_log.csv").open()))
+    assert len(rows) == 3
+    assert all(float(r["sup_keep"]) >= 0 and float(r["sup_d"]) > 0 for r in rows)
+    assert all("Gamma" not in r["sample"] for r in rows)
+    assert (run / "estimator.pt").is_file()
+
+
+def test_train_needs_some_data(tmp_path: Path):
+    from rvr_addon.estimate.train import Trainer, TrainSettings
+
+    with pytest.raises(InputError, match="--real DIR"):
+        Trainer(TrainSettings(run_dir=tmp_path / "run"))
+
+
+@pytest.mark.skipif(not SHARED.is_dir(), reason="../shared/data/real_depth is absent")
+def test_shared_real_depth_listing():
+    pics = find_real_pictures(SHARED)
+    scenes = {p.scene for p in pics}
+    assert len([p for p in pics if p.set == "middlebury2006"]) == 42
+    assert len([s for s in scenes if s.startswith("middlebury")]) == 25
+    for p in pics:
+        q = read_inverse_depth(p)
+        ok = np.isfinite(q)
+        assert ok.mean() > 0.5 and (q[ok] > 0).all(), p.name
