@@ -9,10 +9,13 @@ re-running Analyze on an analysed strip only checks the cache. Cancelling keeps 
 finished so far (the cache's meta.json is flushed) and changes nothing in the scene; only a
 complete run records the cache on the strip (``strip.rvr.cache_path``).
 
-Where D comes from: the network when weights exist (Preferences, else the shipped file),
-replaced by the strip's Disparity maps when they are set ("depth from elsewhere"; E still
-from the network, or 0 without weights). No weights and no maps: an error naming the missing
-weights file and the two fixes.
+Where D comes from: the strip's Depth setting (``strip.rvr.depth_method``: Auto fuses parallax,
+people and the network, see ``rvr_addon.depth.system``; Parallax, People, Network) with its
+Horizontal FOV, replaced by the strip's Disparity maps when they are set ("depth from
+elsewhere"; E still from the network, or 0 without weights). No weights and no maps: an error
+naming the missing weights file and the two fixes. Without MediaPipe, Auto leaves the people cue
+out and says so (the report and the panel's depth line); People then is an error naming the fix.
+After Analyze the panel shows which cues spoke (:func:`depth_line`, from the cache's meta.json).
 """
 from __future__ import annotations
 
@@ -45,6 +48,8 @@ class AnalyzePlan:
     weights: Path | None
     depth: Path | None
     stabilize: bool = True
+    depth_method: str = "auto"
+    hfov_deg: float | None = None
 
 
 def _relative(path: Path) -> str:
@@ -76,8 +81,52 @@ def plan_analyze(scene, strip, preferences=None) -> AnalyzePlan:
         log.warning("torch is not installed: strip '%s' is analysed with its disparity maps and without HDR "
                     "recovery (install the full build of the extension for the estimator)", strip.name)
         weights = None
+    method = str(getattr(strip.rvr, "depth_method", "AUTO")).lower()
+    if depth is not None and method != "auto":
+        raise InputError(f"strip '{strip.name}' has Disparity maps and its Depth is set to {method.title()}: the maps "
+                         "are the depth; clear the Disparity maps, or set Depth to Auto")
+    hfov = float(getattr(strip.rvr, "hfov_deg", 0.0)) or None
     folder = cache_folder(source, preferences.cache_dir)
-    return AnalyzePlan(source, folder, _relative(folder), weights, depth)
+    return AnalyzePlan(source, folder, _relative(folder), weights, depth, depth_method=method, hfov_deg=hfov)
+
+
+_DEPTH_LINES: dict[str, tuple[float, str]] = {}
+
+
+def depth_line(cache: Path | str) -> str:
+    """One line on the depth a cache holds, from its meta.json (``depth_plan`` and ``depth_cues``),
+    e.g. ``Depth (auto): parallax 40/48, people 48/48, network`` or ``Depth (auto): network;
+    people off: ...``. "" for a cache without a plan (older caches, unreadable files). Cached by
+    the file's mtime: panels call it on every redraw."""
+    import json
+
+    path = Path(cache) / "meta.json"
+    try:
+        mtime = path.stat().st_mtime
+    except OSError:
+        return ""
+    hit = _DEPTH_LINES.get(str(path))
+    if hit is not None and hit[0] == mtime:
+        return hit[1]
+    try:
+        meta = json.loads(path.read_text())
+        plan = meta.get("depth_plan") or {}
+        cues = list(plan.get("cues") or [])
+        used = ((meta.get("depth_cues") or {}).get("used")) or {}
+        reasons = plan.get("reasons") or {}
+    except (OSError, ValueError, AttributeError, TypeError):
+        return ""
+    if not cues:
+        return ""
+    n = used.get("frames")
+    parts = [f"{c} {used.get(c, 0)}/{n}" if n and c not in ("network", "external") else c for c in cues]
+    line = f"Depth ({plan.get('method', '?')}): " + ", ".join(parts)
+    off = [f"{k} {str(v).split(';')[0]}" for k, v in reasons.items() if str(v).startswith("off")]
+    notes = (meta.get("depth_cues") or {}).get("notes") or []
+    if off or notes:
+        line += "; " + "; ".join(off + [str(x) for x in notes])
+    _DEPTH_LINES[str(path)] = (mtime, line)
+    return line
 
 
 class AnalyzeJob:
@@ -91,7 +140,8 @@ class AnalyzeJob:
         span = plan.source.span
         self.estimate = EstimateJob(EstimateSettings(
             input=plan.source.path, output=plan.cache, weights=plan.weights, depth=plan.depth,
-            no_hdr=plan.weights is None, start=span.clip_start, stop=span.clip_stop, fps=plan.source.fps))
+            no_hdr=plan.weights is None, start=span.clip_start, stop=span.clip_stop, fps=plan.source.fps,
+            depth_method=plan.depth_method, hfov_deg=plan.hfov_deg))
         self.stabilize = None
         self.phase = "estimate"
         self.text = self.estimate.text
@@ -130,6 +180,8 @@ class AnalyzeJob:
     def summary(self) -> str:
         e = self.estimate
         text = f"estimated {e.computed} frames, reused {e.reused} from the cache"
+        off = [f"{k} {v.split(';')[0]}" for k, v in e.plan.reasons.items() if v.startswith("off")]
+        text += f"; depth: {' + '.join(e.plan.cues)}" + (f" ({'; '.join(off)})" if off else "")
         if self.stabilize is not None:
             text += f"; {self.stabilize.text}"
         return text

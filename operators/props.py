@@ -63,6 +63,14 @@ RENDER_SIZES = (
     ("0.25", "Proxy 25%", "Quarter size"),
 )
 
+DEPTH_METHODS = (
+    ("AUTO", "Auto", "Every signal the clip has, fused: parallax where the camera moves sideways, people (MediaPipe) "
+     "and the network everywhere"),
+    ("PARALLAX", "Parallax", "Depth from the camera's motion (with the network), even where it barely moves"),
+    ("PEOPLE", "People", "Person layers and their distance from face size (with the network); needs MediaPipe"),
+    ("NETWORK", "Network", "The estimator network alone (the fastest)"),
+)
+
 PREVIEW_MODES = (
     ("OFF", "Off", "Show the strip as it is"),
     ("REFOCUS", "Refocused", "Show the refocused frame (from the cache, at preview resolution)"),
@@ -141,6 +149,12 @@ class RVR_PG_strip(bpy.types.PropertyGroup):
         description="Disparity maps of the clip, one per frame (EXR/PNG/NPY file, folder or pattern)",
         subtype="FILE_PATH", options=compat.PATH_OPTIONS,
     )
+    depth_method: EnumProperty(name="Depth", items=DEPTH_METHODS, default="AUTO",
+                               description="Where Analyze takes the disparity from (the strip's Disparity maps, when "
+                                           "set, replace it)")
+    hfov_deg: FloatProperty(name="Horizontal FOV", default=0.0, min=0.0, max=179.0, soft_max=120.0, precision=1,
+                            description="The camera's horizontal field of view in degrees, for depth from parallax "
+                                        "and face size (0 = unknown: a phone's main camera, 66)")
     hdr_path: StringProperty(
         name="HDR",
         description="Optional HDR exponent maps (log space), one per frame (folder or pattern)",

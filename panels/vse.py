@@ -14,6 +14,7 @@ from __future__ import annotations
 import bpy
 
 from ..operators import compat, fcurves
+from ..operators.ops_analyze import depth_line
 from ..operators.ops_render import RENDERABLE_TYPES
 
 
@@ -95,10 +96,17 @@ class RVR_PT_focus(_RefocusTab, bpy.types.Panel):
         col = layout.column()
         col.prop(rvr, "depth_path")
         col.prop(rvr, "hdr_path")
+        if not rvr.depth_path:
+            col.prop(rvr, "depth_method")
+            if rvr.depth_method != "NETWORK":
+                col.prop(rvr, "hfov_deg")
         row = layout.row(align=True)
         row.operator("rvr.analyze", icon="VIEW_CAMERA")
         if rvr.cache_path:
             layout.label(text=f"Cache: {rvr.cache_path}", icon="CHECKMARK")
+            line = depth_line(bpy.path.abspath(rvr.cache_path))
+            if line:
+                layout.label(text=line, icon="INFO")
 
         col = layout.column()
         col.prop(rvr, "preview_mode")

@@ -122,3 +122,58 @@ def test_analyze_without_torch_says_to_install_the_full_build(movie_strip, vse_w
     movie_strip.rvr.depth_path = str(vse_depth)  # with maps: analysed from them, without HDR recovery
     assert bpy.ops.rvr.analyze("EXEC_DEFAULT") == {"FINISHED"}
     assert _meta(movie_strip)["model_hash"] == "none"
+
+
+def _panel_labels():
+    from layout_recorder import LayoutRecorder
+
+    rec = LayoutRecorder()
+    bpy.types.RVR_PT_focus.draw(type("P", (), {"layout": rec})(), bpy.context)
+    return rec
+
+
+def test_analyze_auto_records_the_cues_and_the_panel_shows_them(movie_strip, vse_weights, use_prefs, registered,
+                                                               monkeypatch):
+    import importlib.util
+
+    use_prefs(weights_path=str(vse_weights))
+    assert movie_strip.rvr.depth_method == "AUTO" and movie_strip.rvr.hfov_deg == 0.0
+    assert ("prop", "depth_method") in _panel_labels().calls
+    has_mediapipe = importlib.util.find_spec("mediapipe") is not None
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    meta = _meta(movie_strip)
+    cues = ["people", "network"] if has_mediapipe else ["network"]  # a still camera, 64x36 px: no parallax
+    assert meta["depth_plan"]["method"] == "auto" and meta["depth_plan"]["cues"] == cues
+    assert meta["depth_plan"]["reasons"]["parallax"]  # why not
+    if has_mediapipe:
+        assert meta["depth"]["method"] == "auto" and meta["depth"]["cues"] == cues  # the cache key
+        assert meta["depth_cues"]["used"]["frames"] == VSE_N
+    line = registered.operators.ops_analyze.depth_line(_cache(movie_strip))
+    assert line.startswith("Depth (auto): ") and ("people 0/12" in line if has_mediapipe else "people off" in line)
+    assert ("label", line) in _panel_labels().calls  # one line under the cache
+    assert "depth: " + " + ".join(cues) in op.reports[-1][1]
+    # Network: another key, the cache is recomputed, the line follows
+    movie_strip.rvr.depth_method = "NETWORK"
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    assert f"estimated {VSE_N} frames" in op.reports[-1][1] and _meta(movie_strip)["depth"] == "network"
+    assert registered.operators.ops_analyze.depth_line(_cache(movie_strip)) == "Depth (network): network"
+    # without mediapipe: Auto goes on without the people cue and says so; People is an error naming the fix
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a, **k: None if name.split(".")[0] == "mediapipe" else real(name, *a, **k))
+    movie_strip.rvr.depth_method = "AUTO"
+    movie_strip.rvr.hfov_deg = 70.0
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    assert "people off" in op.reports[-1][1] and "mediapipe" in op.reports[-1][1]
+    assert "people off" in registered.operators.ops_analyze.depth_line(_cache(movie_strip))
+    movie_strip.rvr.depth_method = "PEOPLE"
+    with pytest.raises(RuntimeError, match="mediapipe.*pip install") as info:
+        bpy.ops.rvr.analyze("EXEC_DEFAULT")
+    assert "Traceback" not in str(info.value)
+    # the maps are the depth: another Depth than Auto is a clear error
+    movie_strip.rvr.depth_path = str(movie_strip.rvr.cache_path)
+    with pytest.raises(RuntimeError, match="clear the Disparity maps, or set Depth to Auto"):
+        bpy.ops.rvr.analyze("EXEC_DEFAULT")
