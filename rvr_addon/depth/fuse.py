@@ -6,7 +6,8 @@ Per frame, in metric inverse depth ``q`` (1/m, larger = nearer; :mod:`.cues`):
    scale: it is fixed from the people where both see the same pixels (a running median of the
    ratio over the clip), else once, at the first frame with parallax, so that the median trusted
    pixel is ``default_distance_m`` away. The clip keeps that scale, so D of one scene point is
-   the same in every frame.
+   the same in every frame; where the cue restarts its own unit (``scale_reset``) the scale is
+   carried over from the previous frame's fused depth.
 2. **The network.** Its D is affine in q (``q = a D + b``, a < 0). Where geometry (parallax)
    covers the frame, a and b are fitted by weighted least squares on the trusted pixels; with
    people alone (a still camera) only b is fitted (on the people) and a keeps the lens's
@@ -21,8 +22,11 @@ Per frame, in metric inverse depth ``q`` (1/m, larger = nearer; :mod:`.cues`):
    the network everywhere with a small weight, as the prior) and spread with OpenCV's fast
    global smoother guided by the frame, as a normalised convolution (smooth(w q) / smooth(w)),
    so geometry fills the textureless areas between its trusted pixels and stops at edges.
-5. ``D = K (q_ref - q)`` with K of the reference lens (:func:`.cues.lens_constant`) and q_ref
-   the clip's first median inverse depth (D = 0 there; the render's focus is separate).
+5. ``D = K (q_ref - q)`` with K of the reference lens (:func:`.cues.lens_constant`) and
+   ``q_ref = 1 / default_distance_m`` (D = 0 there; the render's focus is separate). A frame
+   without any cue keeps the network's D as it is (the network is trained in DESIGN units), or,
+   once the clip's cues have fitted the network, maps it through that fit, so a person walking
+   out of the shot does not change the units of the frames after.
 
 Work runs at ``analysis_long_side``; D is brought back to full size with the frame as guide.
 """
@@ -120,7 +124,10 @@ class DepthFuser:
         self.K = lens_constant(self.width)
         self.parallax_scale: float | None = None
         self._ratios: list[float] = []
-        self.q_ref: float | None = None
+        self.q_ref = 1.0 / settings.default_distance_m
+        """Inverse depth (1/m) put at D = 0: the same for every clip and chunk; a frame without
+        cues keeps the network's own D, which is then consistent with ``fit = (-1/K, q_ref)``."""
+        self._last_q: np.ndarray | None = None
         self._fit: tuple[float, float] | None = None
         self.used: dict[str, int] = {"frames": 0, "parallax": 0, "people": 0, "network_only": 0}
 
@@ -137,6 +144,10 @@ class DepthFuser:
                 self._ratios.append(float(np.median(people.inverse_depth[both] / q[both])))
                 self._ratios = self._ratios[-200:]
                 self.parallax_scale = float(np.median(self._ratios))
+        elif par.info.get("scale_reset") and self._last_q is not None and ok.sum() > 50 \
+                and self._last_q.shape == q.shape and not self._ratios:
+            # the cue started a new unit: carry the clip's scale over from the previous frame
+            self.parallax_scale = float(np.median(self._last_q[ok] / q[ok]))
         if self.parallax_scale is None and ok.sum() > 50:
             self.parallax_scale = (1.0 / s.default_distance_m) / float(np.median(q[ok]))
         scale = self.parallax_scale if self.parallax_scale is not None else 0.0
@@ -213,8 +224,12 @@ class DepthFuser:
             par = CueMap("parallax", q_par, c_par, True, True, par.info) if (c_par > 0).any() else None
         if par is None and people is None:
             self.used["network_only"] += 1
-            return FusedDepth(network_d.astype(np.float32), np.zeros((h, w), np.float32), ["network"],
-                              {"fit": None})
+            d = network_d.astype(np.float32)
+            if self._fit is not None:  # keep the units the clip's earlier cues gave it
+                a, b = self._fit
+                d = (self.K * (self.q_ref - (a * d + b))).astype(np.float32)
+            return FusedDepth(d, np.zeros((h, w), np.float32), ["network"],
+                              {"fit": None if self._fit is None else list(self._fit)})
         # the network, mapped to q by the geometric cues
         geo_q = np.full(d_net.shape, np.nan, np.float32)
         geo_w = np.zeros(d_net.shape, np.float32)
@@ -226,8 +241,8 @@ class DepthFuser:
             geo_q = np.where(better, cue.inverse_depth, geo_q)
             geo_w = np.where(better, wc, geo_w)
         fit = self._remember(self._network_fit(d_net, geo_q, geo_w, slope_free=par is not None))
-        if fit is None:
-            fit = (-1.0 / self.K, 0.0)
+        if fit is None:  # the network's D taken as DESIGN units, as on a frame without cues
+            fit = (-1.0 / self.K, self.q_ref)
         q_net = (fit[0] * d_net + fit[1]).astype(np.float32)
         if people is not None:
             ceiling = self._behind_people(people, d_net.shape)
@@ -246,8 +261,7 @@ class DepthFuser:
         if people is not None:
             inside = np.clip(people.confidence, 0.0, 1.0)
             q = np.where(np.isfinite(people.inverse_depth), inside * people.inverse_depth + (1 - inside) * q, q)
-        if self.q_ref is None:
-            self.q_ref = float(np.median(q))
+        self._last_q = q
         d = (self.K * (self.q_ref - q)).astype(np.float32)
         conf = np.clip((conf - s.network_weight) / max(1.0 - s.network_weight, 1e-6), 0.0, 1.0)
         if (d.shape[1], d.shape[0]) != (w, h):
