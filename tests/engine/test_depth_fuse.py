@@ -72,7 +72,12 @@ def test_no_cue_leaves_the_network_d_unchanged():
         out = fuser(textured(), net_d, cues)
         np.testing.assert_array_equal(out.disparity, net_d)
         assert out.cues == ["network"] and not out.confidence.any()
-    assert fuser.used["network_only"] == 2 and fuser.q_ref is None
+    assert fuser.used["network_only"] == 2 and fuser._fit is None
+    # once cues have fitted the network, a frame without cues keeps the clip's units (through that fit)
+    fuser(with_people(textured(), [(60, 20, 100, 96, 1.5)]), net_d, [person_cue((H, W), [(60, 20, 100, 96, 1.5)])])
+    a, b = fuser._fit
+    out = fuser(textured(), net_d, [])
+    np.testing.assert_allclose(out.disparity, fuser.K * (fuser.q_ref - (a * net_d + b)), rtol=1e-5, atol=1e-5)
 
 
 def test_design_units_two_people():
