@@ -19,7 +19,9 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 4. **Triangulation.** Per pixel, the depth along t's ray that best meets the flow's ray in the
    neighbour (linear least squares, vectorised over pixels), with a confidence: forward-backward
    flow agreement, triangulation angle (px of de-rotated parallax), distance to the epipolar
-   line (independent motion: people walking, cars) and positive depth in both views.
+   line (independent motion: people walking, cars) and positive depth in both views. A depth
+   under half the baseline (Q_MAX) or far nearer than the bulk of the frame (SPIKE_RATIO) is a
+   flow error that happens to lie on the epipolar line and is dropped.
 5. **Fusion.** The neighbours' maps are brought to one scale (median ratio) and fused by a
    confidence-weighted mean of the values that agree with their median; neighbours that
    disagree (an object moving along the epipolar line) lower the confidence.
@@ -78,6 +80,13 @@ FB_TOL_PX, FB_TOL_RELATIVE = 1.0, 0.05
 EPI_TOL_PX = 1.5
 """Tolerated distance (px) of the flow's end point from the epipolar line (more: independent
 motion or a flow error)."""
+Q_MAX = 2.0
+"""Largest inverse depth a pair may triangulate, in 1/(its baseline): nothing the camera sees is
+nearer than half the distance it moved (nearer: a flow error that happens to lie on the
+epipolar line)."""
+SPIKE_RATIO = 4.0
+"""A pair's inverse depth above this many times the 95th percentile of its trusted values is
+dropped (a near object covering under 5 % of the frame, or a flow error)."""
 ANGLE_MIN_PX, ANGLE_FULL_PX = 1.0, 3.0
 """Triangulation angle, as px of de-rotated parallax at analysis size, under which a pixel is
 not trusted at all / from which it is fully trusted."""
@@ -563,7 +572,10 @@ class _Run:
         ys, xs = np.mgrid[0:h:step, 0:w:step]
         x2, y2 = xs + p.f_ab[::step, ::step, 0], ys + p.f_ab[::step, ::step, 1]
         inside = (x2 >= 0) & (x2 <= w - 1) & (y2 >= 0) & (y2 <= h - 1)
-        c = np.where(front & inside & (q > 0), c, 0).astype(np.float32)
+        c = np.where(front & inside & (q > 0) & (q < Q_MAX), c, 0).astype(np.float32)
+        ok = c > 0.5
+        if ok.sum() >= 100:  # a spike far nearer than the bulk of the frame: a flow error
+            c = np.where(q <= SPIKE_RATIO * np.percentile(q[ok], 95), c, 0).astype(np.float32)
         q = np.where(c > 0, q, np.nan).astype(np.float32)
         return q, c, ang
 
