@@ -53,7 +53,7 @@ class FusionSettings:
     """FGS edge sensitivity in 8-bit code values (smaller = stops at fainter edges)."""
     default_distance_m: float = 3.0
     behind_ratio: float = 0.8
-    behind_reach: float = 0.15
+    behind_reach: float = 0.3
     fit_memory: float = 0.8
     """Weight of the previous frames' network fit (0 = fit every frame on its own)."""
 
@@ -179,23 +179,31 @@ class DepthFuser:
         self._fit = fit
         return fit
 
-    def _behind_people(self, people: CueMap, shape: tuple[int, int]) -> np.ndarray:
-        """A ceiling on q around the people (see the module docstring), inf far from them."""
+    def _behind_people(self, people: CueMap, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        """(ceiling, weight): a ceiling on q around the people (see the module docstring) and how
+        much it applies (1 near a person, fading smoothly to 0 ``behind_reach`` away)."""
         import cv2
 
         s = self.settings
         q = np.where(np.isfinite(people.inverse_depth) & (people.confidence > 0.5), people.inverse_depth, 0.0)
+        q = q.astype(np.float32)
         if not (q > 0).any():
-            return np.full(shape, np.inf, np.float32)
+            return np.full(shape, np.inf, np.float32), np.zeros(shape, np.float32)
         # a max filter of the people's q, on a coarse copy (a large kernel at full size is slow)
         f = min(1.0, 96.0 / max(shape))
         small = (max(int(round(shape[1] * f)), 1), max(int(round(shape[0] * f)), 1))
-        coarse = cv2.resize(q.astype(np.float32), small, interpolation=cv2.INTER_AREA if f < 1 else cv2.INTER_LINEAR)
-        coarse = np.maximum(coarse, cv2.resize(q.astype(np.float32), small, interpolation=cv2.INTER_NEAREST))
+        coarse = cv2.resize(q, small, interpolation=cv2.INTER_NEAREST)
         reach = max(int(round(s.behind_reach * small[0])), 1)
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * reach + 1, 2 * reach + 1))
-        near = cv2.resize(cv2.dilate(coarse, kernel), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
-        return np.where(near > 0, s.behind_ratio * near, np.inf).astype(np.float32)
+        near = cv2.dilate(coarse, kernel)
+        grown = cv2.dilate((near > 0).astype(np.float32),
+                           cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (reach + 1, reach + 1)))
+        weight = np.minimum(cv2.GaussianBlur(grown, (0, 0), max(reach / 4.0, 0.5)) * 2.0, 1.0)
+        near = np.where(near > 0, near, float(near.max()))  # no ceiling of 0 where the weight fades out
+        size = (shape[1], shape[0])
+        ceiling = s.behind_ratio * cv2.resize(near, size, interpolation=cv2.INTER_LINEAR)
+        weight = cv2.resize(weight, size, interpolation=cv2.INTER_LINEAR)
+        return ceiling.astype(np.float32), np.clip(weight, 0.0, 1.0).astype(np.float32)
 
     # -------------------------------------------------------------- the frame
 
@@ -245,11 +253,12 @@ class DepthFuser:
             fit = (-1.0 / self.K, self.q_ref)
         q_net = (fit[0] * d_net + fit[1]).astype(np.float32)
         if people is not None:
-            ceiling = self._behind_people(people, d_net.shape)
+            ceiling, weight = self._behind_people(people, d_net.shape)
             if par is not None:  # parallax overrules the assumption where it is trusted
-                ceiling = np.where(par.confidence > 0.5, np.inf, ceiling)
+                weight = np.where(par.confidence > 0.5, 0.0, weight)
             outside = ~(np.isfinite(people.inverse_depth) & (people.confidence > 0.5))
-            q_net = np.where(outside, np.minimum(q_net, ceiling), q_net)
+            capped = (1.0 - weight) * q_net + weight * np.minimum(q_net, ceiling)
+            q_net = np.where(outside, capped, q_net).astype(np.float32)
         num = s.network_weight * q_net
         den = np.full(d_net.shape, s.network_weight, np.float32)
         geo = np.where(geo_w > 0, geo_w, 0.0)
