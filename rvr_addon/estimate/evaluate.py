@@ -3,7 +3,15 @@
 ```
 rvr eval-estimator --weights W.pt --data HELDOUT_DATASET [--motorcycle] -o REPORT
                    [--max-frames N] [--every K] [--compare-frames K] [--force]
+                   [--real-set DIR [--weights-per-scene JSON]] [--depth-method network|auto|people]
+                   [--real-video DIR [--depth-methods auto,network] [--video-frames N]] [--hfov DEG]
+                   [--aperture DIR [--aperture-size PX]]
 ```
+
+Real material (``--real-set``, ``--real-video``, ``--aperture``: real pictures with measured
+depth, real RGB-D video with poses, real aperture photos) is scored by :mod:`.evaluate_real`
+(its docstring defines those keys); ``--depth-method`` also sets what ``--real`` and
+``--motorcycle`` run (default ``network``, the figures below).
 
 **Harness clips** (``--data``, sintel_eval/DATASET.md; use clips the weights were *not* trained
 on): every complete frame (or every K-th, at most N per clip) of every clip is run through the
