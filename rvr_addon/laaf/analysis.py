@@ -90,7 +90,7 @@ class ClipSetup:
         small, gray = shrink(rgb, self.size)
         t1 = time.perf_counter()
         disp = self.depth.get(self.start + k, self.size) if with_depth else None
-        return AnalysisFrame(k, small, gray, disp, self.scale, self.fps), {"decode": t1 - t0,
+        return AnalysisFrame(k, small, gray, disp, self.scale, self.fps, native=rgb), {"decode": t1 - t0,
                                                                            "depth": time.perf_counter() - t1}
 
 
@@ -205,14 +205,17 @@ class FrameAnalyser:
         features: dict[str, object] = {}
         seconds: dict[str, float] = {}
         prev = self.prev if self.prev is not None and self.prev.t == frame.t - 1 else None
-        for name, det in self.detectors.items():
-            if warm_up and name != "face":
-                continue
-            t0 = time.perf_counter()
-            features[name] = det.measure(frame, prev, self.faces)
-            seconds[name] = time.perf_counter() - t0
-            if name == "face" and features[name] is not None:
-                self.faces = list(features[name])
+        try:
+            for name, det in self.detectors.items():
+                if warm_up and name != "face":
+                    continue
+                t0 = time.perf_counter()
+                features[name] = det.measure(frame, prev, self.faces)
+                seconds[name] = time.perf_counter() - t0
+                if name == "face" and features[name] is not None:
+                    self.faces = list(features[name])
+        finally:
+            frame.native = None  # measured: the buffers keep the analysis size only
         self.prev = frame
         return features, seconds
 

@@ -337,7 +337,7 @@ class AutofocusJob:
             boxes = face.faces_at(0) if isinstance(face, FaceDetector) else []
             if not boxes:
                 try:
-                    boxes = [(b, 1.0, None) for b in FaceDetector(backend=self.settings.face_backend).backend.detect(af.gray)]
+                    boxes = [(b, 1.0, None) for b in FaceDetector(backend=self.settings.face_backend).detect(af)]
                 except RuntimeError:
                     boxes = []
             if boxes:

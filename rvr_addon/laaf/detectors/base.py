@@ -31,6 +31,9 @@ class AnalysisFrame:
     disparity: (h, w) float32 in DESIGN units of the *native* width (values not rescaled).
     scale: analysis size / native size (boxes in native px = analysis px / scale).
     fps: frames per second of the clip.
+    native: the decoded (H, W, 3) uint8 RGB frame at its native size, present only while the
+    frame is measured (``analysis.FrameAnalyser`` drops it after: frames are buffered at the
+    analysis size); the face mesh reads mouths on it. None: use ``rgb``.
     """
 
     t: int
@@ -39,6 +42,7 @@ class AnalysisFrame:
     disparity: np.ndarray | None
     scale: float
     fps: float
+    native: np.ndarray | None = None
 
 
 @dataclass

@@ -1,5 +1,8 @@
-"""Face detector H_face: dlib's HOG frontal face detector (as the paper used dlib), or OpenCV's
-Haar cascades (frontal + profile, shipped in ``cv2.data.haarcascades``) when dlib is missing.
+"""Face detector H_face: MediaPipe's full-range face detector where ``mediapipe`` imports (the
+default: it finds profiles and faces of a few dozen px that HOG misses), else dlib's HOG frontal
+face detector (as the paper used dlib), else OpenCV's Haar cascades (frontal + profile, shipped in
+``cv2.data.haarcascades``). ``backend='auto'`` takes the first that loads and logs one line saying
+which runs; 'mediapipe', 'dlib' and 'haar' ask for one (RuntimeError naming the fix if missing).
 
 Faces are detected every ``every`` frames (boxes are held in between) and linked into face
 tracks by overlap, so the speech detector can follow each face's mouth. The heat map is 1
@@ -44,14 +47,47 @@ def _dlib_detector():
     return dlib.get_frontal_face_detector()
 
 
+BACKENDS = ("auto", "mediapipe", "dlib", "haar")
+_announced: set[str] = set()
+
+
+def _announce(kind: str, why: str = "") -> None:
+    """One log line per process and backend: which face detector LAAF runs."""
+    if kind not in _announced:
+        _announced.add(kind)
+        names = {"mediapipe": "MediaPipe full-range face detection + face mesh", "dlib": "dlib HOG",
+                 "haar": "OpenCV Haar cascades"}
+        log.info("LAAF face detector: %s%s", names[kind], f" ({why})" if why else "")
+
+
 class FaceBackend:
-    """Raw face boxes of one grey frame: dlib HOG ('dlib') or Haar cascades ('haar')."""
+    """Raw face boxes of one frame: MediaPipe ('mediapipe'), dlib HOG ('dlib') or Haar cascades
+    ('haar'); 'auto' = the first of these that loads."""
 
     def __init__(self, backend: str = "auto", min_face_px: int = 24, dlib_threshold: float = 0.0) -> None:
+        if backend not in BACKENDS:
+            raise ValueError(f"face backend {backend!r} is not known; use one of {', '.join(BACKENDS)}")
         self.min_face_px = min_face_px
         self.dlib_threshold = dlib_threshold
         self.kind = backend
-        if backend in ("auto", "dlib"):
+        self.mediapipe = None
+        why = ""
+        if backend in ("auto", "mediapipe"):
+            from .mediapipe_face import MediaPipeFaces, mediapipe_importable
+
+            if mediapipe_importable() or backend == "mediapipe":
+                try:
+                    self.mediapipe = MediaPipeFaces(mesh=False)
+                    self.mediapipe.load()
+                    self.kind = "mediapipe"
+                except Exception as exc:  # PeopleModelError: not importable / a model does not load
+                    self.mediapipe = None
+                    if backend == "mediapipe":
+                        raise RuntimeError(f"the MediaPipe face backend cannot run: {exc}") from exc
+                    why = f"mediapipe failed: {exc}"
+            else:
+                why = "mediapipe is not installed"
+        if self.kind in ("auto", "dlib"):
             try:
                 self._dlib = _dlib_detector()
                 self.kind = "dlib"
@@ -60,6 +96,7 @@ class FaceBackend:
                     raise RuntimeError("dlib is not installed: pip install -r requirements.txt (dlib-bin), "
                                        "or use the Haar cascades (backend='haar')") from None
                 self.kind = "haar"
+                why = (why + "; " if why else "") + "dlib is not installed"
         if self.kind == "haar":
             import cv2
 
@@ -68,12 +105,28 @@ class FaceBackend:
             self._profile = cv2.CascadeClassifier(root + "haarcascade_profileface.xml")
             if self._front.empty():
                 raise RuntimeError(f"OpenCV's Haar cascades are missing from {root}; reinstall opencv-contrib")
+        _announce(self.kind, why)
+
+    def detect_frame(self, gray: np.ndarray, rgb: np.ndarray | None = None) -> list[Box]:
+        """Face boxes (x, y, w, h) px of a frame: MediaPipe sees ``rgb`` (the grey frame when
+        None), dlib and Haar the grey one (:meth:`detect`)."""
+        if self.kind == "mediapipe" and rgb is not None:
+            return self._mediapipe(rgb)
+        return self.detect(gray)
+
+    def _mediapipe(self, rgb: np.ndarray) -> list[Box]:
+        # MediaPipe finds faces well below dlib's 80 px window: keep boxes of >= 8 px (a 32 px face
+        # at 4x the analysis size, where the face mesh still reads a mouth on the native frame)
+        boxes = [b for b, _ in self.mediapipe.detect(rgb)]
+        return [b for b in _nms(boxes) if min(b[2], b[3]) >= min(8.0, self.min_face_px * 0.6)]
 
     def detect(self, gray: np.ndarray) -> list[Box]:
         """Face boxes (x, y, w, h) px of a (H, W) uint8 frame."""
         import cv2
 
         h, w = gray.shape
+        if self.kind == "mediapipe":
+            return self._mediapipe(np.dstack([gray, gray, gray]))
         if self.kind == "dlib":
             # dlib's HOG window is 80 px: upsample (x2 per step) until faces of min_face_px are found
             up = int(np.clip(np.ceil(np.log2(80.0 / max(self.min_face_px, 1))), 0, 3))
@@ -142,7 +195,7 @@ class FaceDetector(FocusDetector):
 
     def detect(self, frame: AnalysisFrame) -> list[Box]:
         """Face boxes (analysis px) of one frame, largest first (the order tracks are matched in)."""
-        return sorted(self.backend.detect(frame.gray), key=lambda b: -b[2] * b[3])
+        return sorted(self.backend.detect_frame(frame.gray, frame.rgb), key=lambda b: -b[2] * b[3])
 
     def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list[Box]) -> list[Box] | None:
         """The frame's face boxes on detection frames (t a multiple of ``every``), else None."""

@@ -4,6 +4,25 @@ The paper used a deep audio-visual localiser (Owens & Efros 2018). Here, without
 weights, the same cue explicitly: while the voice activity detector says someone speaks, the
 speaker is the face whose *mouth motion* follows the *audio envelope*.
 
+**Who speaks, by the mouth** (where ``mediapipe`` imports; ``mouth='auto'``): per face track and
+frame, the face mesh's mouth opening (``people.mouth_opening``: inner-lip gap / mouth width, a
+ratio of the face's own size) on a crop of the native frame around the track's box
+(``mediapipe_face.MediaPipeFaces.mouths``). At voiced frame t a face's score is the Pearson
+correlation of its opening with the audio envelope over a window of ``mouth_window_s`` (centred
+on t in look-ahead mode, ending at t in causal mode, clipped to the voiced segment +-2 frames),
+the opening shifted by the track's audio-video lag; the lag (within +-``max_lag_s``) is the one
+that maximises that correlation over the track's whole voiced history so far (running sums, no
+frames kept): split-screen interviews have one delay per feed (measured 0.12 s one way and 0.2 s
+the other on ``visualvoice_interview.mp4``), and a per-window lag search would make chance
+correlations win. A face is a candidate only if its mouth moves enough (standard deviation of
+the opening in the window >= ``mouth_min_activity``); the speaker is the best candidate if it
+reaches ``mouth_min_corr`` and beats the next face by ``min_margin``. When no face's mouth
+follows the voice (off-screen speech, a voice-over), nobody is the speaker: the heat map is
+empty and the combination keeps its focus, never moving it onto a silent face (the rule that
+a lone face is taken as the speaker when it correlates at all is for the motion cues below).
+
+**Fallback, without a face mesh** (mediapipe missing, ``mouth='motion'``, or a face the mesh does
+not find: a profile, a drawn face): the raw motion of the box's mouth region.
 Per frame (analysis resolution): the previous frame is aligned to the current one by a
 homography (sparse Lucas-Kanade features + RANSAC: camera motion removed), and the absolute
 difference gives motion energy. For each face track of the face detector two mouth cues are
@@ -40,7 +59,10 @@ from ..audio import AudioTrack, NoAudio, analyse_audio, decode_audio
 from ..nft import Box
 from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
 from .face import FaceDetector
+from .mediapipe_face import MediaPipeFaces, mediapipe_importable
 from .synchrony import SynchronyLocaliser
+
+MOUTH_MODES = ("auto", "mesh", "motion")
 
 log = logging.getLogger(__name__)
 
@@ -124,14 +146,26 @@ class SpeechDetector(FocusDetector):
 
     def __init__(self, faces: FaceDetector, fps: float, n_frames: int, media=None, audio: AudioTrack | None = None,
                  start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25, min_margin: float = 0.1,
-                 sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1) -> None:
+                 sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
+                 mouth: str = "auto", mouth_window_s: float = 1.5, mouth_min_corr: float = 0.3,
+                 mouth_min_activity: float = 0.02, max_lag_s: float = 0.24) -> None:
+        if mouth not in MOUTH_MODES:
+            raise ValueError(f"speech detector: mouth={mouth!r} is not one of {', '.join(MOUTH_MODES)}")
         self.faces = faces
         self.fps = fps
         self.causal = causal
         self.min_corr = min_corr
         self.min_margin = min_margin
         self.radius = max(2, int(round(window_s * fps / 2)))
-        self.lookahead_frames = 0 if causal else self.radius + (max(0, int(sync_margin)) if sync else 0)
+        self.mouth_radius = max(2, int(round(mouth_window_s * fps / 2)))
+        self.mouth_min_corr = mouth_min_corr
+        self.mouth_min_activity = mouth_min_activity
+        self.max_lag = max(0, int(round(max_lag_s * fps)))
+        self.mesh = MediaPipeFaces(detect=False) if mouth == "mesh" or (mouth == "auto" and mediapipe_importable()) \
+            else None
+        self._mesh_required = mouth == "mesh"
+        self.lookahead_frames = 0 if causal else max(self.radius, self.mouth_radius + self.max_lag) + \
+            (max(0, int(sync_margin)) if sync else 0)
         self.sync_min_corr = sync_min_corr
         self.sync_margin = max(0, int(sync_margin))
         self.sync_box_frac = sync_box_frac
@@ -150,6 +184,9 @@ class SpeechDetector(FocusDetector):
                     log.warning("%s; the preset falls back to the other detectors", self.unavailable_reason)
         self._prev: AnalysisFrame | None = None  # the frame before (process only)
         self._mouth: dict[str, dict[int, float]] = {}
+        self._open: dict[str, dict[int, float]] = {}  # track -> frame -> face-mesh mouth opening
+        self._lag_sums: dict[str, np.ndarray] = {}  # track -> (lags, 6): n, sx, sy, sxx, syy, sxy
+        self._mesh_decided: set[int] = set()
         self._shape: tuple[int, int] = (0, 0)
         self._last = -1
         self._decisions: dict[int, tuple[Box | None, float, str | None]] = {}
@@ -173,7 +210,22 @@ class SpeechDetector(FocusDetector):
         energy = None
         if self.synchrony is not None:
             energy = self.synchrony.measure(prev.gray if prev is not None else None, cur, frame.disparity)
-        return mouths, energy
+        return mouths, energy, self._openings(frame, faces)
+
+    def _openings(self, frame: AnalysisFrame, faces: list[Box]) -> list[float | None] | None:
+        """The face mesh's mouth opening per box of ``faces`` (on the native frame when the frame
+        carries it), None per face the mesh does not find; None without a mesh."""
+        if self.mesh is None or not faces:
+            return None
+        image, scale = (frame.native, frame.scale) if frame.native is not None else (frame.rgb, 1.0)
+        try:
+            return self.mesh.mouths(image, faces, scale)
+        except Exception as exc:  # PeopleModelError: mediapipe does not load here
+            if self._mesh_required:
+                raise
+            log.warning("speech detector: no face mesh (%s); who speaks comes from mouth motion", exc)
+            self.mesh = None
+            return None
 
     def process(self, t: int, frame: AnalysisFrame) -> None:
         if not self.available:
@@ -188,16 +240,23 @@ class SpeechDetector(FocusDetector):
         boxes they were measured in) and the block energy."""
         if not self.available:
             return
-        mouths, energy = measured
+        mouths, energy = measured[:2]
+        openings = measured[2] if len(measured) > 2 else None
         self._shape = frame.gray.shape
-        if mouths is not None:
-            faces = self.faces.faces_at(t)
-            if len(faces) != len(mouths):
-                raise RuntimeError(f"speech detector: {len(mouths)} mouth readings for the {len(faces)} faces of "
+        faces = self.faces.faces_at(t) if mouths is not None or openings is not None else []
+        for readings in (mouths, openings):
+            if readings is not None and len(faces) != len(readings):
+                raise RuntimeError(f"speech detector: {len(readings)} mouth readings for the {len(faces)} faces of "
                                    f"frame {t}; the frame was measured with other face boxes")
+        if mouths is not None:
             for (_, _, tid), cues in zip(faces, mouths):
                 if tid is not None and cues is not None:
                     self._mouth.setdefault(tid, {})[t] = cues
+        if openings is not None:
+            for (_, _, tid), value in zip(faces, openings):
+                if tid is not None and value is not None:
+                    self._open.setdefault(tid, {})[t] = float(value)
+        self._add_lag_pairs(t)
         if self.synchrony is not None:
             self.synchrony.add(t, frame.gray.shape, energy)
         self._prev = frame
@@ -206,11 +265,47 @@ class SpeechDetector(FocusDetector):
         for series in self._mouth.values():
             for k in [k for k in series if k < t - keep]:
                 del series[k]
+        keep = 4 * (self.mouth_radius + self.max_lag) + 4
+        for series in self._open.values():
+            for k in [k for k in series if k < t - keep]:
+                del series[k]
+
+    def _add_lag_pairs(self, t: int) -> None:
+        """Add to each track's lag sums the pairs (opening at k + lag, envelope at k) of voiced
+        frame k = t - max_lag, for every lag in +-max_lag (all known once frame t is in; the
+        envelope is read at k <= t only, so causal mode stays causal)."""
+        a, k = self.audio, t - self.max_lag
+        if a is None or k < 0 or k >= len(a.voiced) or not a.voiced[k]:
+            return
+        y = float(a.envelope[k])
+        lags = range(-self.max_lag, self.max_lag + 1)
+        for tid, series in self._open.items():
+            sums = self._lag_sums.setdefault(tid, np.zeros((len(lags), 6)))
+            for i, lag in enumerate(lags):
+                x = series.get(k + lag)
+                if x is not None:
+                    sums[i] += (1.0, x, y, x * x, y * y, x * y)
+
+    def track_lag(self, tid: str) -> int:
+        """The audio-video lag (frames) of face track ``tid``: the one whose opening, shifted by
+        it, correlates best with the envelope over the track's voiced history (0 until it has
+        two seconds of voiced frames)."""
+        sums = self._lag_sums.get(tid)
+        if sums is None or sums[self.max_lag, 0] < 2.0 * self.fps:
+            return 0
+        n, sx, sy, sxx, syy, sxy = sums.T
+        n = np.maximum(n, 1.0)
+        cov = sxy / n - sx * sy / (n * n)
+        den = np.sqrt(np.maximum(sxx / n - (sx / n) ** 2, 0.0) * np.maximum(syy / n - (sy / n) ** 2, 0.0))
+        r = np.where(den > 1e-12, cov / np.maximum(den, 1e-12), -1.0)
+        return int(np.argmax(r)) - self.max_lag
 
     # -- decide -----------------------------------------------------------------------------
-    def _window(self, t: int, margin: int = 2) -> tuple[int, int] | None:
-        """Frames (first, last) of the decision window of voiced frame t (module docstring),
-        clipped to its voiced segment +- ``margin`` frames; None if t is silent."""
+    def _window(self, t: int, margin: int = 2, radius: int | None = None) -> tuple[int, int] | None:
+        """Frames (first, last) of the decision window of voiced frame t (module docstring) of
+        ``radius`` frames each side (default: ``window_s``), clipped to its voiced segment +-
+        ``margin`` frames; None if t is silent."""
+        radius = self.radius if radius is None else radius
         a = self.audio
         if a is None or t >= len(a.voiced) or not a.voiced[t]:
             return None
@@ -221,9 +316,9 @@ class SpeechDetector(FocusDetector):
         while e + 1 < len(a.voiced) and a.voiced[e + 1]:
             e += 1
         if self.causal:
-            lo, hi = max(t - 2 * self.radius, s - margin), t
+            lo, hi = max(t - 2 * radius, s - margin), t
         else:
-            lo, hi = max(t - self.radius, s - margin), min(t + self.radius, e + margin)
+            lo, hi = max(t - radius, s - margin), min(t + radius, e + margin)
         lo, hi = max(lo, 1), min(hi, self._last)
         return (lo, hi) if hi - lo + 1 >= 3 else None
 
@@ -241,7 +336,13 @@ class SpeechDetector(FocusDetector):
             if not faces and self.synchrony is not None:
                 result = self._decide_by_synchrony(t)
             scored = []
+            mwin = self._window(t, radius=self.mouth_radius)
             for box, _, tid in faces:
+                by_mesh = self._mouth_score(tid, mwin) if mwin is not None else None
+                if by_mesh is not None:  # the face mesh read this mouth: its opening decides
+                    if by_mesh[1] >= self.mouth_min_activity:
+                        scored.append((by_mesh[0], box, tid, True))
+                    continue
                 series = self._mouth.get(tid, {})
                 ks = [i for i, k in enumerate(frames) if k in series]
                 if len(ks) < 3:
@@ -252,18 +353,37 @@ class SpeechDetector(FocusDetector):
                 r = max(_pearson(_smooth(feats[:, 0]), _smooth(env[ks])),
                         _pearson(_smooth(feats[:, 0]), _smooth(d_env[ks])),
                         _pearson(_smooth(feats[:, 1]), _smooth(env[ks])))
-                scored.append((r, box, tid))
+                scored.append((r, box, tid, False))
             scored.sort(key=lambda x: -x[0])
             if scored:
-                r, box, tid = scored[0]
+                r, box, tid, mesh = scored[0]
                 margin = r - scored[1][0] if len(scored) > 1 else r
-                if (r >= self.min_corr and margin >= self.min_margin) or (len(faces) == 1 and r > 0):
+                if mesh:
+                    if r >= self.mouth_min_corr and margin >= self.min_margin:
+                        result = (box, r, tid)
+                        self._mesh_decided.add(t)
+                elif (r >= self.min_corr and margin >= self.min_margin) or (len(faces) == 1 and r > 0):
                     result = (box, r, tid)
         self._decisions[t] = result
         if len(self._decisions) > 8 * self.radius + 8:
             for k in sorted(self._decisions)[: len(self._decisions) // 2]:
                 del self._decisions[k]
         return result
+
+    def _mouth_score(self, tid: str | None, win: tuple[int, int]) -> tuple[float, float] | None:
+        """(correlation of the track's mouth opening, shifted by its lag, with the envelope over
+        the frames of ``win``; standard deviation of that opening), or None when the face mesh
+        read the mouth on fewer than 60% of those frames (then the motion cues decide)."""
+        series = self._open.get(tid) if tid is not None else None
+        if not series:
+            return None
+        lag = self.track_lag(tid)
+        frames = [k for k in range(win[0], win[1] + 1) if 0 <= k < len(self.audio.envelope)]
+        ks = [k for k in frames if k + lag in series]
+        if len(ks) < max(5, 0.6 * len(frames)):
+            return None
+        opening = np.array([series[k + lag] for k in ks])
+        return _pearson(opening, self.audio.envelope[ks].astype(np.float64)), float(opening.std())
 
     def _sync_window(self, t: int) -> tuple[int, int] | None:
         """Frames (first, last) of the synchrony window of voiced frame t: its whole voiced
@@ -321,7 +441,9 @@ class SpeechDetector(FocusDetector):
 
     def metrics(self) -> dict:
         m = {"available": self.available, "s_per_frame": self._seconds / max(self._last + 1, 1),
-             "speaker_frames": self._speaker_frames, "synchrony_frames": self._sync_frames}
+             "speaker_frames": self._speaker_frames, "synchrony_frames": self._sync_frames,
+             "mouth": "mesh" if self.mesh is not None else "motion", "mesh_frames": len(self._mesh_decided),
+             "track_lags_frames": {tid: self.track_lag(tid) for tid in sorted(self._lag_sums)}}
         if self.audio is not None:
             m["voiced_frames"] = int(self.audio.voiced.sum())
             m["voiced_segments"] = [[int(a), int(b)] for a, b in self.audio.segments()]

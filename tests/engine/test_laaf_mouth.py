@@ -1,0 +1,164 @@
+"""Who speaks, by the mouth: face-mesh mouth opening correlated with the voice (speech detector),
+off-screen voices, and the MediaPipe face backend with its fallback."""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rvr_addon.laaf.audio import AudioTrack
+from rvr_addon.laaf.detectors import face as face_mod
+from rvr_addon.laaf.detectors import mediapipe_face
+from rvr_addon.laaf.detectors.base import AnalysisFrame
+from rvr_addon.laaf.detectors.face import FaceBackend, FaceDetector
+from rvr_addon.laaf.detectors.speech import SpeechDetector
+
+ROOT = Path(__file__).resolve().parents[2]
+CLIPS = ROOT.parent / "shared" / "data" / "clips"
+HAVE_MP = importlib.util.find_spec("mediapipe") is not None
+FPS = 25.0
+BOXES = {"A": (40.0, 40.0, 30.0, 30.0), "B": (130.0, 40.0, 30.0, 30.0)}
+
+
+class FixedFaces(FaceDetector):
+    """Known face tracks (the mouth readings are given, not measured)."""
+
+    def __init__(self, boxes):
+        self.boxes = boxes
+
+    def faces_at(self, t):
+        return [(b, 1.0, tid) for tid, b in self.boxes.items()]
+
+
+def voice(n=150, seed=0):
+    """A syllabic envelope (4-5 Hz bursts of random loudness), silence for the first 10 frames."""
+    rng = np.random.default_rng(seed)
+    env = np.abs(np.sin(np.arange(n) * 2 * np.pi * 4.3 / FPS + rng.uniform(0, 6))) * rng.uniform(0.3, 1.0, n)
+    env[:10] = 0.0
+    voiced = np.zeros(n, bool)
+    voiced[10:] = True
+    return env.astype(np.float32), voiced
+
+
+def run(openings: dict[str, np.ndarray | None], env, voiced, causal=False, boxes=BOXES):
+    """Feed per-frame mouth openings (None: the mesh found no face) straight into ``ingest``;
+    each frame is decided once its look-ahead is in (as LAAF does): ``det.decided[t]``."""
+    n = len(env)
+    audio = AudioTrack(voiced, env, voiced.astype(np.float32), FPS)
+    det = SpeechDetector(FixedFaces(boxes), FPS, n, audio=audio, causal=causal, sync=False, mouth="motion")
+    det.decided = {}
+    gray = np.zeros((120, 200), np.uint8)
+    frame = AnalysisFrame(0, np.zeros((120, 200, 3), np.uint8), gray, None, 1.0, FPS)
+    for t in range(n):
+        frame.t = t
+        values = [None if openings[tid] is None else float(openings[tid][t]) for tid in boxes]
+        det.ingest(t, frame, (None, None, values))
+        if t >= det.lookahead_frames:
+            det.decided[t - det.lookahead_frames] = det.decide(t - det.lookahead_frames)
+    det.flush()
+    for t in range(max(0, n - det.lookahead_frames), n):
+        det.decided[t] = det.decide(t)
+    return det
+
+
+def chewing(n, seed=1):
+    """A listener's mouth that moves, but not with the voice."""
+    rng = np.random.default_rng(seed)
+    return 0.1 + 0.1 * np.abs(np.sin(np.arange(n) * 2 * np.pi * 1.3 / FPS + 2.0)) + rng.normal(0, 0.01, n)
+
+
+@pytest.mark.parametrize("speaker", ["A", "B"])
+@pytest.mark.parametrize("causal", [False, True], ids=["lookahead", "causal"])
+def test_the_face_whose_mouth_opens_with_the_voice_speaks(speaker, causal):
+    env, voiced = voice()
+    n = len(env)
+    rng = np.random.default_rng(3)
+    talk = 0.05 + 0.4 * env / env.max() + rng.normal(0, 0.02, n)
+    other = chewing(n)
+    det = run({"A": talk if speaker == "A" else other, "B": talk if speaker == "B" else other}, env, voiced, causal)
+    decided = [det.decided[t][2] for t in range(40, n - 5)]
+    assert decided.count(speaker) >= 0.9 * len(decided)
+    assert det.decided[3][0] is None  # silence: nobody speaks
+    assert det.output(n - 10).boxes[0][2] == speaker
+    assert det.metrics()["mesh_frames"] > 0
+
+
+def test_a_feed_delayed_against_the_sound_is_still_found():
+    """Split-screen interviews: one feed's video lags the mixed audio; the track's lag is learnt."""
+    env, voiced = voice(n=200)
+    n = len(env)
+    talk = 0.05 + 0.4 * env / env.max()
+    delayed = np.concatenate([np.full(4, 0.05), talk[:-4]])  # the mouth shows 4 frames after the sound
+    det = run({"A": chewing(n), "B": delayed}, env, voiced)
+    assert det.track_lag("B") == 4
+    decided = [det.decided[t][2] for t in range(80, n - 8)]
+    assert decided.count("B") >= 0.9 * len(decided)
+
+
+@pytest.mark.parametrize("causal", [False, True], ids=["lookahead", "causal"])
+def test_an_off_screen_voice_gives_no_face_the_speech_target(causal):
+    """Nobody on screen utters the voice: one face chews, one is still; no face is the speaker."""
+    env, voiced = voice()
+    n = len(env)
+    det = run({"A": chewing(n), "B": np.full(n, 0.02)}, env, voiced, causal)
+    decided = [det.decided[t][0] for t in range(20, n)]
+    assert sum(b is not None for b in decided) <= 0.1 * len(decided)
+    assert det.output(n - 10).heat is None and det.output(n - 10).boxes == []
+
+
+def test_a_lone_silent_face_is_not_the_speaker_of_a_voice():
+    """The motion cues take a lone face as the speaker if it correlates at all; a mouth the mesh
+    reads as closed while someone speaks must not take the focus."""
+    env, voiced = voice()
+    n = len(env)
+    rng = np.random.default_rng(5)
+    det = run({"A": 0.02 + rng.normal(0, 0.003, n)}, env, voiced, boxes={"A": BOXES["A"]})
+    assert all(det.decided[t][0] is None for t in range(20, n))
+
+
+def test_faces_the_mesh_does_not_read_fall_back_to_mouth_motion():
+    env, voiced = voice(n=60)
+    det = run({"A": None, "B": None}, env, voiced)
+    assert det.metrics()["mesh_frames"] == 0
+    assert det._mouth_score("A", (20, 40)) is None
+
+
+def test_the_face_backend_falls_back_without_mediapipe(monkeypatch):
+    monkeypatch.setattr(mediapipe_face, "mediapipe_importable", lambda: False)
+    backend = FaceBackend("auto")
+    assert backend.kind in ("dlib", "haar") and backend.mediapipe is None
+    with pytest.raises(ValueError, match="not known"):
+        FaceBackend("hog")
+
+
+def test_speech_detector_without_mediapipe_uses_motion(monkeypatch):
+    from rvr_addon.laaf.detectors import speech
+
+    monkeypatch.setattr(speech, "mediapipe_importable", lambda: False)
+    env, voiced = voice(n=20)
+    det = SpeechDetector(FixedFaces(BOXES), FPS, 20, audio=AudioTrack(voiced, env, voiced.astype(np.float32), FPS))
+    assert det.mesh is None and det.metrics()["mouth"] == "motion"
+    frame = AnalysisFrame(0, np.zeros((120, 200, 3), np.uint8), np.zeros((120, 200), np.uint8), None, 1.0, FPS)
+    assert det.measure(frame, None, list(BOXES.values()))[2] is None
+
+
+@pytest.mark.skipif(not HAVE_MP, reason="mediapipe is not installed")
+def test_mediapipe_is_the_default_face_backend():
+    backend = FaceBackend("auto")
+    assert backend.kind == "mediapipe"
+    assert backend.detect_frame(np.zeros((90, 160), np.uint8), np.zeros((90, 160, 3), np.uint8)) == []
+
+
+@pytest.mark.skipif(not HAVE_MP, reason="mediapipe is not installed")
+@pytest.mark.skipif(not (CLIPS / "lipnet_grid_lwbsza.mpg").is_file(), reason="lipnet clip not in ../shared/data/clips")
+def test_on_a_real_clip_the_speaker_is_found_and_a_shifted_voice_is_not_hers():
+    sys.path.insert(0, str(ROOT / "bench"))
+    from speaker_bench import attribute, attributed_share
+
+    run_ = attribute(CLIPS / "lipnet_grid_lwbsza.mpg", "auto", "auto")
+    assert run_["backend"] == "mediapipe" and run_["metrics"]["mouth"] == "mesh"
+    assert attributed_share(run_, 0.0) >= 0.8  # her mouth follows her voice
+    assert attributed_share(run_, 0.4) <= 0.3  # the same voice 1.2 s later is not hers
