@@ -25,10 +25,14 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 5. **Fusion.** The neighbours' maps are brought to one scale (median ratio) and fused by a
    confidence-weighted mean of the values that agree with their median; neighbours that
    disagree (an object moving along the epipolar line) lower the confidence.
-6. **One scale per clip.** Two views give depth up to the pair's baseline. The chain fixes
-   it: a behind neighbour n was already output in the clip's scale, and the same pair
-   triangulated in n's view must match n's map, so their median ratio gives the pair's baseline
-   in the clip's unit. The first frame (or one after a stretch without parallax: info
+6. **One scale per clip.** Two views give depth up to the pair's baseline. Every output frame
+   keeps its inverse depth at its tracks; for frame t, each earlier output frame n of the window
+   makes the tracks it shares with t 3-D points, PnP (RANSAC) on their positions in t gives t's
+   pose in the clip's unit and so their inverse depth in t, and per track the median over the
+   frames n is the prediction; each pair's scale is the median ratio of its map to it at the
+   tracks (several earlier frames, not one anchor pair: the scale does not random-walk). Without
+   enough predicted tracks, a behind neighbour n already output anchors it: the same pair
+   triangulated in n's view must match n's map. The first frame (or one after a stretch without parallax: info
    ``scale_reset``) sets the unit: median inverse depth 1 on its trusted pixels.
 
 Output per frame: ``CueMap(name="parallax", metric=False, shift_free=True)`` at the frame's
@@ -84,6 +88,10 @@ Q_MAX = 2.0
 """Largest inverse depth a pair may triangulate, in 1/(its baseline): nothing the camera sees is
 nearer than half the distance it moved (nearer: a flow error that happens to lie on the
 epipolar line)."""
+MIN_SCALE_TRACKS = 20
+"""Fewest tracks with a known inverse depth that fix a pair's scale (else the dense anchor)."""
+PNP_THRESHOLD_PX = 1.5
+"""RANSAC threshold (px) of the PnP pose of a frame on an earlier frame's tracked points."""
 SPIKE_RATIO = 4.0
 """A pair's inverse depth above this many times the 95th percentile of its trusted values is
 dropped (a near object covering under 5 % of the frame, or a flow error)."""
@@ -105,6 +113,8 @@ class _Frame:
     q: np.ndarray | None = None  # output inverse depth (clip unit) at analysis size
     conf: np.ndarray | None = None
     epoch: int = -1  # the scale chain the output map belongs to
+    tq_ids: np.ndarray | None = None  # once output: the tracks on trusted pixels ...
+    tq: np.ndarray | None = None  # ... and their inverse depth there (clip unit)
 
 
 @dataclass
@@ -579,6 +589,67 @@ class _Run:
         q = np.where(c > 0, q, np.nan).astype(np.float32)
         return q, c, ang
 
+    # ---------------------------------------------------------------- scale from the tracks
+
+    def _keep_track_depth(self, t: _Frame) -> None:
+        """Remember the output inverse depth of t at its tracks on trusted pixels."""
+        h, w = t.q.shape
+        xi = np.clip(np.rint(t.pts[:, 0]).astype(int), 0, w - 1)
+        yi = np.clip(np.rint(t.pts[:, 1]).astype(int), 0, h - 1)
+        q, c = t.q[yi, xi], t.conf[yi, xi]
+        ok = np.isfinite(q) & (c > 0.5) & (q > 0)
+        t.tq_ids, t.tq = t.ids[ok], q[ok].astype(np.float64)
+
+    def _track_prediction(self, buf: list[_Frame], c: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Inverse depth (clip unit) of t's tracks predicted by every earlier output frame n of
+        the chain in the window: n's map makes its tracks 3-D points, PnP (RANSAC) on their
+        positions in t gives t's pose in the clip's unit, the points' depth in t follows; per
+        track the median over the frames n. Returns (x, y) pixel indices in t and the inverse
+        depths, or None (fewer than MIN_SCALE_TRACKS)."""
+        t = buf[c]
+        ids_all, q_all = [], []
+        for n in buf[:c]:
+            if n.tq_ids is None or n.epoch != self.epoch or len(n.tq_ids) < MIN_SCALE_TRACKS:
+                continue
+            _, ia, ib = np.intersect1d(n.tq_ids, t.ids, assume_unique=True, return_indices=True)
+            if len(ia) < MIN_SCALE_TRACKS:
+                continue
+            _, ja, _ = np.intersect1d(n.ids, n.tq_ids[ia], assume_unique=True, return_indices=True)
+            # n.tq_ids is a subset of n.ids in the same order, so ja follows ia's order
+            X = (_normalise(self.K, n.pts[ja, 0], n.pts[ja, 1]).astype(np.float64) / n.tq[ia]).T
+            uv = t.pts[ib].astype(np.float64)
+            try:
+                ok, rvec, tvec, inl = cv2.solvePnPRansac(X, uv, self.K, None, iterationsCount=100,
+                                                         reprojectionError=PNP_THRESHOLD_PX, confidence=0.99,
+                                                         flags=cv2.SOLVEPNP_EPNP)
+            except cv2.error:
+                continue
+            if not ok or inl is None or len(inl) < MIN_SCALE_TRACKS:
+                continue
+            inl = inl.ravel()
+            try:
+                rvec, tvec = cv2.solvePnPRefineLM(X[inl], uv[inl], self.K, None, rvec, tvec)
+            except cv2.error:
+                pass
+            z = (X[inl] @ cv2.Rodrigues(rvec)[0].T + tvec.reshape(1, 3))[:, 2]
+            good = z > 0
+            ids_all.append(t.ids[ib][inl][good])
+            q_all.append(1.0 / z[good])
+        if not ids_all:
+            return None
+        ids, q = np.concatenate(ids_all), np.concatenate(q_all)
+        order = np.argsort(ids, kind="stable")
+        ids, q = ids[order], q[order]
+        uniq, start = np.unique(ids, return_index=True)
+        qm = np.array([np.median(v) for v in np.split(q, start[1:])])
+        if len(uniq) < MIN_SCALE_TRACKS:
+            return None
+        _, it, _ = np.intersect1d(t.ids, uniq, assume_unique=True, return_indices=True)
+        h, w = t.gray.shape
+        xi = np.clip(np.rint(t.pts[it, 0]).astype(int), 0, w - 1)
+        yi = np.clip(np.rint(t.pts[it, 1]).astype(int), 0, h - 1)
+        return xi, yi, qm
+
     # ---------------------------------------------------------------- per output frame
 
     def _choose(self, buf: list[_Frame], c: int) -> tuple[list[tuple[int, float]], float]:
@@ -623,7 +694,8 @@ class _Run:
         maps = []  # (j, q_raw, conf, angle, pair)
         for j, _ in chosen:
             self._add_map(maps, t, buf, j)
-        if maps and not any(buf[j].q is not None and buf[j].epoch == self.epoch for j, *_ in maps):
+        pred = self._track_prediction(buf, c)
+        if maps and pred is None and not any(buf[j].q is not None and buf[j].epoch == self.epoch for j, *_ in maps):
             # no chosen neighbour carries the clip's unit: anchor on the earliest output frame
             # of the same chain in the window, which also joins the fusion
             prior = [j for j in range(c)
@@ -633,11 +705,19 @@ class _Run:
         if not maps:
             return _empty(t.full_size, "flow or pose failed on every neighbour (no rigid parallax)",
                           track_parallax_px=round(best, 2))
-        # scale: anchor on a neighbour already output in the clip's unit
+        # scale: from the tracks' inverse depth predicted by the earlier output frames, else
+        # anchor on a neighbour already output in the clip's unit
         scales: dict[int, float] = {}
+        if pred is not None:
+            xi, yi, qp = pred
+            for j, q, conf, ang, p in maps:
+                qr = q[yi, xi]
+                ok = np.isfinite(qr) & (conf[yi, xi] > 0.5)
+                if ok.sum() >= MIN_SCALE_TRACKS:
+                    scales[j] = float(np.exp(np.median(np.log(qr[ok]) - np.log(qp[ok]))))
         for j, q, conf, ang, p in maps:
             n = buf[j]
-            if n.q is None or n.epoch != self.epoch:
+            if j in scales or n.q is None or n.epoch != self.epoch:
                 continue
             back = self.pair(n, t)
             if back is None or back.R is None:
@@ -685,6 +765,7 @@ class _Run:
             q_out = np.where(sw > 1e-6, q_out, np.nan).astype(np.float32)
         c_out = np.where(np.isfinite(q_out), c_out, 0).astype(np.float32)
         t.q, t.conf, t.epoch = q_out, c_out, self.epoch
+        self._keep_track_depth(t)
         ang_all = np.concatenate([a[3][a[2] > 0.5] for a in maps])
         info = {"parallax": True, "neighbours": [int(buf[j].index - t.index) for j, *_ in maps],
                 "median_angle_deg": round(float(np.degrees(np.median(ang_all))) if ang_all.size else 0.0, 4),
