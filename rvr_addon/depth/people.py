@@ -118,7 +118,7 @@ def _importable(name: str) -> bool:
         return False
 
 
-def _import_mediapipe() -> Any:
+def import_mediapipe() -> Any:
     """``mediapipe`` (its legacy ``solutions`` API), or PeopleModelError naming the fix.
 
     mediapipe's ``solutions/drawing_utils`` imports matplotlib at import time for a plotting helper
@@ -240,7 +240,7 @@ class PeopleDetector:
         """Build the three MediaPipe solutions once (PeopleModelError when one cannot load)."""
         if self._models is not None:
             return self._models
-        mp = _import_mediapipe()
+        mp = import_mediapipe()
         models: dict[str, Any] = {}
         try:
             models["segment"] = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=1)
@@ -307,41 +307,12 @@ class PeopleDetector:
         for face in faces:
             face["width"], face["mouth"] = face["box_w"] * BOX_TO_FACE_WIDTH, None
             if "mesh" in models:
-                points = self._mesh(models["mesh"], frame, face["box"])
+                points = face_landmarks(models["mesh"], frame, face["box"])
                 if points is not None:
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
             face["distance"] = float(np.clip(focal_px(w, self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))
         return faces
-
-    @staticmethod
-    def _mesh(mesh: Any, frame: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray | None:
-        """Face-mesh landmarks (478, 3) in full-size px (z in the same px scale) on a square crop
-        around box, or None when the mesh finds no face there (or finds a neighbour: its nose tip
-        must lie inside box)."""
-        h, w = frame.shape[:2]
-        cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-        half = _MESH_CROP_SCALE * max(box[2] - box[0], box[3] - box[1]) / 2
-        x0, y0 = int(max(0, np.floor(cx - half))), int(max(0, np.floor(cy - half)))
-        x1, y1 = int(min(w, np.ceil(cx + half))), int(min(h, np.ceil(cy + half)))
-        if x1 - x0 < 8 or y1 - y0 < 8:
-            return None
-        crop = frame[y0:y1, x0:x1]
-        # at most _MESH_CROP_PX on the long side; small faces enlarged to _MESH_MIN_CROP_PX (the face
-        # mesh's own detector finds no face of a few dozen px)
-        long_side = max(x1 - x0, y1 - y0)
-        cs = min(_MESH_CROP_PX, max(_MESH_MIN_CROP_PX, long_side)) / long_side
-        cw, ch = max(1, round((x1 - x0) * cs)), max(1, round((y1 - y0) * cs))
-        found = mesh.process(np.ascontiguousarray(_resize(crop, (cw, ch), cubic=True))).multi_face_landmarks
-        if not found:
-            return None
-        pts = np.array([(p.x, p.y, p.z) for p in found[0].landmark], np.float64)
-        if pts.shape[0] <= _IRIS_L:
-            return None
-        sx, sy = x1 - x0, y1 - y0
-        points = np.stack([x0 + pts[:, 0] * sx, y0 + pts[:, 1] * sy, pts[:, 2] * sx], axis=1)
-        nose_x, nose_y = points[_NOSE_TIP, :2]
-        return points if box[0] <= nose_x <= box[2] and box[1] <= nose_y <= box[3] else None
 
     def _split(self, matte: np.ndarray, faces: list[dict], full: tuple[int, int]) -> list[_Layer]:
         """Split the analysis-size matte between faces (geodesic, nearer faces grow faster); each
@@ -449,3 +420,32 @@ def _relief(person: Person, share: np.ndarray, scale: float) -> np.ndarray:
     edge = 1.0 - np.clip(inside / max(0.5 * fw, 1.0), 0.0, 1.0)
     depth = person.distance_m + FACE_RELIEF_M * (1.0 - bump) + EDGE_RELIEF_M * edge
     return (1.0 / depth).astype(np.float32)
+
+
+def face_landmarks(mesh: Any, frame: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray | None:
+    """Face-mesh landmarks (478, 3) in full-size px (z in the same px scale) on a square crop
+    around box, or None when the mesh finds no face there (or finds a neighbour: its nose tip
+    must lie inside box)."""
+    h, w = frame.shape[:2]
+    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
+    half = _MESH_CROP_SCALE * max(box[2] - box[0], box[3] - box[1]) / 2
+    x0, y0 = int(max(0, np.floor(cx - half))), int(max(0, np.floor(cy - half)))
+    x1, y1 = int(min(w, np.ceil(cx + half))), int(min(h, np.ceil(cy + half)))
+    if x1 - x0 < 8 or y1 - y0 < 8:
+        return None
+    crop = frame[y0:y1, x0:x1]
+    # at most _MESH_CROP_PX on the long side; small faces enlarged to _MESH_MIN_CROP_PX (the face
+    # mesh's own detector finds no face of a few dozen px)
+    long_side = max(x1 - x0, y1 - y0)
+    cs = min(_MESH_CROP_PX, max(_MESH_MIN_CROP_PX, long_side)) / long_side
+    cw, ch = max(1, round((x1 - x0) * cs)), max(1, round((y1 - y0) * cs))
+    found = mesh.process(np.ascontiguousarray(_resize(crop, (cw, ch), cubic=True))).multi_face_landmarks
+    if not found:
+        return None
+    pts = np.array([(p.x, p.y, p.z) for p in found[0].landmark], np.float64)
+    if pts.shape[0] <= _IRIS_L:
+        return None
+    sx, sy = x1 - x0, y1 - y0
+    points = np.stack([x0 + pts[:, 0] * sx, y0 + pts[:, 1] * sy, pts[:, 2] * sx], axis=1)
+    nose_x, nose_y = points[_NOSE_TIP, :2]
+    return points if box[0] <= nose_x <= box[2] and box[1] <= nose_y <= box[3] else None

@@ -52,7 +52,7 @@ class MediaPipeFaces:
         # the people cue's import: it stubs matplotlib where Blender's Python lacks it
         from ...depth import people
 
-        mp = people._import_mediapipe()
+        mp = people.import_mediapipe()
         models: dict[str, Any] = {}
         try:
             if self._want["faces"]:
@@ -106,6 +106,6 @@ class MediaPipeFaces:
         k = 1.0 / scale if scale > 0 else 1.0
         out: list[float | None] = []
         for x, y, bw, bh in boxes:
-            points = people.PeopleDetector._mesh(mesh, image, (x * k, y * k, (x + bw) * k, (y + bh) * k))
+            points = people.face_landmarks(mesh, image, (x * k, y * k, (x + bw) * k, (y + bh) * k))
             out.append(None if points is None else people.mouth_opening(points))
         return out
