@@ -19,20 +19,14 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 4. **Triangulation.** Per pixel, the depth along t's ray that best meets the flow's ray in the
    neighbour (linear least squares, vectorised over pixels), with a confidence: forward-backward
    flow agreement, triangulation angle (px of de-rotated parallax), distance to the epipolar
-   line (independent motion: people walking, cars) and positive depth in both views. A depth
-   under half the baseline (Q_MAX) or far nearer than the bulk of the frame (SPIKE_RATIO) is a
-   flow error that happens to lie on the epipolar line and is dropped.
+   line (independent motion: people walking, cars) and positive depth in both views.
 5. **Fusion.** The neighbours' maps are brought to one scale (median ratio) and fused by a
    confidence-weighted mean of the values that agree with their median; neighbours that
    disagree (an object moving along the epipolar line) lower the confidence.
-6. **One scale per clip.** Two views give depth up to the pair's baseline. Every output frame
-   keeps its inverse depth at its tracks; for frame t, each earlier output frame n of the window
-   makes the tracks it shares with t 3-D points, PnP (RANSAC) on their positions in t gives t's
-   pose in the clip's unit and so their inverse depth in t, and per track the median over the
-   frames n is the prediction; each pair's scale is the median ratio of its map to it at the
-   tracks (several earlier frames, not one anchor pair: the scale does not random-walk). Without
-   enough predicted tracks, a behind neighbour n already output anchors it: the same pair
-   triangulated in n's view must match n's map. The first frame (or one after a stretch without parallax: info
+6. **One scale per clip.** Two views give depth up to the pair's baseline. The chain fixes
+   it: a behind neighbour n was already output in the clip's scale, and the same pair
+   triangulated in n's view must match n's map, so their median ratio gives the pair's baseline
+   in the clip's unit. The first frame (or one after a stretch without parallax: info
    ``scale_reset``) sets the unit: median inverse depth 1 on its trusted pixels.
 
 Output per frame: ``CueMap(name="parallax", metric=False, shift_free=True)`` at the frame's
@@ -43,11 +37,14 @@ rotation only, a plane, no texture) gets an empty cue (all NaN, confidence 0) wh
 why.
 
 Intrinsics: the product does not know K; unless the caller passes one (px of the full frame),
-a pinhole with the principal point at the centre and the focal length of
-:func:`rvr_addon.depth.cues.focal_px` (66 deg horizontal FOV).
+a pinhole with the principal point at the centre whose focal length starts at
+:func:`rvr_addon.depth.cues.focal_px`'s guess (66 deg horizontal FOV) and is refined once, on
+the tracks of the first CAL_FRAMES frames (:func:`refine_focal`: the focal whose two-view
+reconstructions a third view sees best, shrunk toward the guess by its bootstrap uncertainty);
+info ``focal_px`` (full frame) and ``focal_refined``.
 
-Streaming: :meth:`ParallaxEstimator.maps` holds at most 2 W + 1 small gray frames, their
-tracks, the flows of the pairs in use and the W last output maps at analysis size.
+Streaming: :meth:`ParallaxEstimator.maps` holds at most max(2 W + 1, CAL_FRAMES) small gray
+frames, their tracks, the flows of the pairs in use and the W last output maps at analysis size.
 """
 from __future__ import annotations
 
@@ -92,6 +89,20 @@ MIN_SCALE_TRACKS = 20
 """Fewest tracks with a known inverse depth that fix a pair's scale (else the dense anchor)."""
 PNP_THRESHOLD_PX = 1.5
 """RANSAC threshold (px) of the PnP pose of a frame on an earlier frame's tracked points."""
+CAL_FRAMES = 25
+"""Frames read before the first output when the focal length is refined (at least 2 W + 1)."""
+CAL_PARALLAX_PX = 6.0
+"""refine_focal's frame triples (a, b, c): c is the first frame after a whose tracks leave this
+homography residual (px) with a's, b the frame half-way."""
+FOCAL_STEP, FOCAL_STEPS = 1.08, (-4, 5)
+"""Focal lengths tried by refine_focal: the guess times FOCAL_STEP ** k, k in the range
+(0.74-1.47 x the 66 deg guess: about 84 to 48 deg horizontal FOV)."""
+FOCAL_MIN_TRIPLES = 4
+"""refine_focal keeps the guess unless this many frame triples answer."""
+FOCAL_PRIOR_SIGMA = 0.15
+"""Uncertainty (std of log) of the 66 deg guess: the refined focal is the guess and the tracks'
+estimate weighted by their inverse variances (the estimate's from a bootstrap over triples)."""
+FOCAL_BOOTSTRAP = 64
 SPIKE_RATIO = 4.0
 """A pair's inverse depth above this many times the 95th percentile of its trusted values is
 dropped (a near object covering under 5 % of the frame, or a flow error)."""
@@ -318,6 +329,90 @@ def homography_parallax(p1: np.ndarray, p2: np.ndarray) -> float:
     return float(np.percentile(np.hypot(*(pr - p2).T), 90))
 
 
+def three_view_residual(pa: np.ndarray, pb: np.ndarray, pc: np.ndarray, K: np.ndarray) -> float | None:
+    """How badly intrinsics K explain three views of the same (N, 2) px points: the pose of
+    (a, c) from their essential matrix, the points triangulated from a and c, then placed in b
+    by PnP (RANSAC); the mean reprojection error in b (px, each capped at 3). A wrong focal
+    length distorts the two-view reconstruction, which the third view then cannot see
+    consistently. None: too few points or a degenerate pose."""
+    try:
+        E, m = cv2.findEssentialMat(pa, pc, K, cv2.RANSAC, 0.999, 1.0)
+        if E is None or E.shape != (3, 3):
+            return None
+        _, R, T, m2, _ = cv2.recoverPose(E, pa, pc, K, distanceThresh=1e6, mask=m.copy())
+        inl = m2.ravel() > 0
+        if inl.sum() < MIN_TRACKS:
+            return None
+        P1 = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
+        X = cv2.triangulatePoints(P1, K @ np.hstack([R, T]), pa[inl].T, pc[inl].T)
+        X = (X[:3] / X[3]).T
+        ok = np.isfinite(X).all(1) & (X[:, 2] > 0)
+        X, ub = X[ok], pb[inl][ok]
+        if len(X) < MIN_TRACKS:
+            return None
+        found, rv, tv, _ = cv2.solvePnPRansac(X, ub, K, None, reprojectionError=2.0, iterationsCount=100)
+        if not found:
+            return None
+        pr, _ = cv2.projectPoints(X, rv, tv, K, None)
+    except cv2.error:
+        return None
+    return float(np.mean(np.minimum(np.hypot(*(pr.reshape(-1, 2) - ub).T), 3.0)))
+
+
+def refine_focal(triples: list, K: np.ndarray, run: "_Run") -> float | None:
+    """Focal length (px at analysis size) that best explains the tracks of frame ``triples``
+    [(a, b, c), ...] (:func:`three_view_residual`), searched on FOCAL_STEPS around K's (the
+    guess) in FOCAL_STEP ratios with a parabola through the best three; each triple's curve is
+    divided by its minimum and the curves averaged. The minimum's uncertainty comes from a
+    bootstrap over the triples, and the answer is the guess and the minimum weighted by their
+    inverse variances (a ragged curve, as lens distortion or a rolling shutter leave, barely
+    moves the guess). None (keep the guess): fewer than FOCAL_MIN_TRIPLES triples, or under 1 %
+    of change."""
+    f0 = float(K[0, 0])
+    fs = f0 * FOCAL_STEP ** np.arange(FOCAL_STEPS[0], FOCAL_STEPS[1] + 1)
+    curves = []
+    for a, b, c in triples:
+        ids = np.intersect1d(np.intersect1d(a.ids, b.ids, assume_unique=True), c.ids, assume_unique=True)
+        if len(ids) < 2 * MIN_TRACKS:
+            continue
+        pa, pb, pc = (f.pts[np.searchsorted(f.ids, ids)].astype(np.float64) for f in (a, b, c))
+        row = []
+        for f in fs:
+            Kf = K.copy()
+            Kf[0, 0] = Kf[1, 1] = f
+            row.append(three_view_residual(pa, pb, pc, Kf))
+        if any(r is None for r in row) or min(row) <= 0:
+            continue
+        curves.append(np.array(row) / min(row))
+    if len(curves) < FOCAL_MIN_TRIPLES:
+        return None
+    curves = np.array(curves)
+    log_fs = np.log(fs)
+    best = _argmin_log(np.mean(curves, 0), log_fs)
+    # uncertainty of that minimum: bootstrap over the triples (lens distortion, a rolling shutter
+    # or too little rotation leave a flat or ragged curve whose minimum wanders)
+    rng = np.random.default_rng(0)
+    boot = [_argmin_log(np.mean(curves[rng.integers(0, len(curves), len(curves))], 0), log_fs)
+            for _ in range(FOCAL_BOOTSTRAP)]
+    var = max(float(np.var(boot)), 0.02 ** 2)
+    # shrink toward the guess by the two uncertainties (the guess's: FOCAL_PRIOR_SIGMA)
+    w = FOCAL_PRIOR_SIGMA ** 2 / (FOCAL_PRIOR_SIGMA ** 2 + var)
+    f = float(np.exp(np.log(f0) + w * (best - np.log(f0))))
+    return None if abs(np.log(f / f0)) < 0.01 else f
+
+
+def _argmin_log(curve: np.ndarray, log_fs: np.ndarray) -> float:
+    """log focal length at the minimum of a curve sampled on ``log_fs`` (a parabola through the
+    best three samples; the end sample where the minimum is at an end)."""
+    g = int(np.argmin(curve))
+    if not 0 < g < len(curve) - 1:
+        return float(log_fs[g])
+    lo, mid, hi = np.log(curve[g - 1:g + 2])
+    den = lo - 2 * mid + hi
+    d = 0.5 * (lo - hi) / den if den > 0 else 0.0
+    return float(log_fs[g] + np.clip(d, -0.5, 0.5) * (log_fs[1] - log_fs[0]))
+
+
 # ------------------------------------------------------------------------------ helpers
 
 
@@ -382,12 +477,14 @@ class ParallaxEstimator:
     per_side: neighbours chosen behind and ahead (1-2); target_parallax_px: the median
     de-rotated parallax of the tracks (px at analysis size) a neighbour should reach (the
     nearest that does is taken, else the one with the most); min_parallax_px: the homography
-    residual (px) under which a pair counts as rotation only / a plane; preset: DIS preset.
+    residual (px) under which a pair counts as rotation only / a plane; preset: DIS preset;
+    refine_focal: without K, pick the focal length from the clip's first frames
+    (:func:`refine_focal`) instead of keeping the 66 deg guess.
     """
 
     def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
                  per_side: int = 1, target_parallax_px: float = 5.0, min_parallax_px: float = 0.3,
-                 preset: str = "medium") -> None:
+                 preset: str = "medium", refine_focal: bool = True) -> None:
         if window < 1:
             raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
         self.analysis_long_side = int(analysis_long_side)
@@ -397,6 +494,7 @@ class ParallaxEstimator:
         self.target_parallax_px = float(target_parallax_px)
         self.min_parallax_px = float(min_parallax_px)
         self.preset = preset
+        self.refine_focal = bool(refine_focal)
 
     # ---------------------------------------------------------------- public API
 
@@ -405,16 +503,26 @@ class ParallaxEstimator:
         yielded once frame t + window has been read (or the clip ended)."""
         run = _Run(self)
         buf: list[_Frame] = []
+        done = 0  # index of the next frame to output
+        calibrate = self.K is None and self.refine_focal
+        n_cal = max(2 * self.window + 1, CAL_FRAMES)
         for i, frame in enumerate(frames):
             buf.append(run.add(i, frame, buf[-1] if buf else None))
-            centre = len(buf) - 1 - self.window
-            if centre >= 0:
-                yield run.output(buf, centre)
-                if centre >= self.window:
+            if calibrate:
+                if len(buf) < n_cal:
+                    continue
+                run.refine_focal(buf)
+                calibrate = False
+            while done + self.window <= buf[-1].index:
+                yield run.output(buf, done - buf[0].index)
+                done += 1
+                while buf[0].index < done - self.window:
                     run.forget(buf.pop(0).index)
-        start = max(len(buf) - self.window, 0)
-        for c in range(start, len(buf)):
-            yield run.output(buf, c)
+        if calibrate and buf:
+            run.refine_focal(buf)
+        while buf and done <= buf[-1].index:
+            yield run.output(buf, done - buf[0].index)
+            done += 1
 
     def camera_translates(self, frames: Iterable[np.ndarray], max_frames: int = 60) -> tuple[bool, str]:
         """Cheap clip-level check from the tracks alone (no dense flow): does the camera move
@@ -463,6 +571,7 @@ class _Run:
         self.next_id = 0
         self.pairs: OrderedDict[tuple[int, int], _Pair | None] = OrderedDict()
         self.epoch = 0  # the current scale chain (a new one starts where the scale is reset)
+        self.focal_refined = False
 
     # ---------------------------------------------------------------- per input frame
 
@@ -508,6 +617,20 @@ class _Run:
                 pts = np.concatenate([pts, new])
                 self.next_id += len(new)
         fr.ids, fr.pts = ids, pts
+
+    def refine_focal(self, buf: list[_Frame]) -> None:
+        """Replace the guessed focal length by :func:`refine_focal`'s on the buffered frames."""
+        triples = []
+        for o in range(0, len(buf) - 2, 2):  # (a, b, c): c the first with CAL_PARALLAX_PX, b between
+            for k in range(o + 2, len(buf)):
+                if self.track_parallax(buf[o], buf[k]) >= CAL_PARALLAX_PX:
+                    triples.append((buf[o], buf[(o + k) // 2], buf[k]))
+                    break
+        f = refine_focal(triples, self.K, self)
+        if f is not None:
+            self.K = self.K.copy()
+            self.K[0, 0] = self.K[1, 1] = f
+            self.focal_refined = True
 
     def forget(self, index: int) -> None:
         for key in [k for k in self.pairs if index in k]:
@@ -770,6 +893,8 @@ class _Run:
         info = {"parallax": True, "neighbours": [int(buf[j].index - t.index) for j, *_ in maps],
                 "median_angle_deg": round(float(np.degrees(np.median(ang_all))) if ang_all.size else 0.0, 4),
                 "pair_parallax_px": [round(m[4].parallax_px, 2) for m in maps],
-                "scale_reset": reset, "reason": "parallax"}
+                "scale_reset": reset, "reason": "parallax",
+                "focal_px": round(float(self.K[0, 0]) * t.full_size[0] / self.size[0], 2),
+                "focal_refined": self.focal_refined}
         q_full, c_full = upsample(q_out, c_out, t.full_size)
         return CueMap(NAME, q_full, c_full, metric=False, shift_free=True, info=info)

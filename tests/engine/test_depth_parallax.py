@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from rvr_addon.depth.cues import CueMap
+from rvr_addon.depth.cues import CueMap, focal_px
 from rvr_addon.depth.parallax import ParallaxEstimator, default_K, triangulate, upsample
 from rvr_addon.estimate.evaluate import affine_invariant_error
 
@@ -32,10 +32,11 @@ TEXELS_PER_M = 50.0
 TEXTURES = [_texture(s) for s in range(len(PLANES))]
 
 
-def render(cam_pos: np.ndarray, yaw_rad: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def render(cam_pos: np.ndarray, yaw_rad: float = 0.0, K: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Ray-cast the planes from a camera at ``cam_pos`` (world, m) turned by ``yaw_rad`` about
-    the vertical axis: (H, W, 3) uint8 frame and (H, W) float32 depth along the optical axis."""
-    K = default_K(W, H)
+    the vertical axis, intrinsics K (default: :func:`default_K`): (H, W, 3) uint8 frame and
+    (H, W) float32 depth along the optical axis."""
+    K = default_K(W, H) if K is None else K
     xs, ys = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     d_cam = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones_like(xs)], -1)
     c, s = np.cos(yaw_rad), np.sin(yaw_rad)
@@ -132,6 +133,21 @@ def test_rotating_camera_has_no_parallax():
     assert not ok and "rotation" in reason
     maps = list(est.maps(iter(frames)))
     assert all(_empty(m) for m in maps)
+
+
+def test_focal_length_is_refined_from_the_tracks():
+    """A camera narrower than the 66 deg guess (50 deg), turning while it moves (a translation
+    alone leaves the focal length unobservable): the refined focal length halves the guess's
+    error at least; a K given by the caller is kept."""
+    K = default_K(W, H)
+    K[0, 0] = K[1, 1] = focal_px(W, 50.0)
+    frames = [render(np.array([0.04 * i, 0.01 * i, 0.03 * i]), yaw_rad=np.radians(-2.0 * i), K=K)[0]
+              for i in range(20)]
+    m = next(iter(ParallaxEstimator(window=6).maps(iter(frames))))
+    assert m.info["focal_refined"]
+    assert abs(m.info["focal_px"] / K[0, 0] - 1.0) < 0.14, m.info["focal_px"]  # guess: 0.72 of it; measured 0.91
+    m = next(iter(ParallaxEstimator(window=6, K=K).maps(iter(frames))))
+    assert not m.info["focal_refined"] and m.info["focal_px"] == pytest.approx(K[0, 0], rel=1e-4)
 
 
 @pytest.mark.parametrize("frames", [
