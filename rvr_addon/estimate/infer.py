@@ -363,7 +363,7 @@ class EstimateJob:
         if s.no_hdr and method != "external":
             raise InputError("--no-hdr needs --depth: without external depth the network is what estimates D")
         plan = plan_depth(method, lambda: iter_frames(s.input, start=self.start, stop=self.stop), s.hfov_deg)
-        log.info("%s", plan.summary())
+        log.debug("%s", plan.summary())
         return plan
 
     def _model_info(self) -> dict | None:
