@@ -238,6 +238,9 @@ def add_train_parser(sub) -> None:
     p.add_argument("--ignore-prints", action="store_true",
                    help="no disparity supervision on the harness's photo prints (billboards, poster panels: "
                         "photographs of real scenes on flat boards), which teach that a photographed scene is flat")
+    p.add_argument("--grad-clip", type=float, default=1.0, metavar="N",
+                   help="clip the gradient's norm at N before each Adam step (default 1.0; a small N makes every "
+                        "step the same size, which fits the few real pictures of --real faster)")
     p.add_argument("--w-smooth", type=float, default=10.0, help="smoothness weight w1 (paper: 10)")
     sup = LossWeights()
     p.add_argument("--supervised-weight", type=float, default=sup.supervised, metavar="W",
@@ -268,6 +271,8 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     if not 0 < args.min_scale <= 1:
         raise RvrError(f"--min-scale must be in (0, 1], got {args.min_scale}")
+    if not args.grad_clip > 0:
+        raise RvrError(f"--grad-clip must be > 0, got {args.grad_clip}")
     sup = (args.supervised_weight, args.w_disparity, args.w_disparity_grad, args.w_exponent, args.w_exponent_zero)
     if min(sup) < 0:
         raise RvrError(f"--supervised-weight and the --w-* weights must be >= 0, got {sup}")
@@ -283,7 +288,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         procedural_share=args.procedural_share, degrade=args.degrade, expose=args.expose,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
         model=EstimatorConfig(row_prior=args.row_prior), real=args.real, real_exclude=tuple(args.real_exclude),
-        real_share=args.real_share, hdr_teacher=args.hdr_teacher)
+        real_share=args.real_share, hdr_teacher=args.hdr_teacher, grad_clip=args.grad_clip)
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
     run_training("train", trainer, args.output, args.quiet)

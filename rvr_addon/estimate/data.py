@@ -140,6 +140,9 @@ class SampleSource:
     truth_kind: str | None = None
     """Real pictures (origin ``real``): how ``gt_disparity`` stores its ground truth
     (:class:`.real_data.RealPicture`); None for the harness's EXR."""
+    truth_scale: float = 1.0
+    """Real pictures: factor from the stored inverse depth to a stereo disparity in px at the
+    native width (:func:`.real_data.disparity_scale`)."""
 
     @property
     def kinds(self) -> tuple[str, ...]:
@@ -513,7 +516,7 @@ def real_sources(root: str | Path, report: SkipReport, exclude: Iterable[str] = 
 
     exclude: scenes to leave out (leave-scene-out validation), as ``set/scene`` or the scene's
     folder name (``middlebury2006/Aloe`` or ``Aloe``); a name that matches nothing is an error."""
-    from .real_data import find_real_pictures
+    from .real_data import disparity_scale, find_real_pictures
 
     pictures = find_real_pictures(root)
     wanted = {e.strip().lower() for e in exclude if e.strip()}
@@ -532,19 +535,24 @@ def real_sources(root: str | Path, report: SkipReport, exclude: Iterable[str] = 
             report.add("unreadable real picture", f"{pic.image}: {ex}; skipped")
             continue
         found.append(SampleSource(pic.name, "real", pic.image, {}, width, {}, pic.truth,
-                                  disparity_invariant=True, truth_kind=pic.truth_kind))
+                                  disparity_invariant=True, truth_kind=pic.truth_kind,
+                                  truth_scale=disparity_scale(pic)))
     return found
 
 
-def real_target(path: Path, truth_kind: str, size: tuple[int, int]) -> np.ndarray:
-    """The training target of a real picture at ``size`` (w, h): ``-q / median(q)`` of its inverse
-    depth q (our D grows away from the camera; the median makes every picture's target unitless,
-    so Middlebury's disparity in px and a Kinect's 1/mm weigh alike), NaN where unknown."""
+def real_target(path: Path, truth_kind: str, scale: float, size: tuple[int, int]) -> np.ndarray:
+    """The training target of a real picture at ``size`` (w, h), in px at the picture's native
+    width (the caller rescales to the working width like any disparity): ``-scale * q`` of its
+    inverse depth q (our D grows away from the camera; ``scale`` makes it a stereo disparity in
+    px, :func:`.real_data.disparity_scale`), NaN where unknown. The loss aligns it by a positive
+    scale and a shift, so only its unit matters: a picture weighs by its depth contrast in px.
+
+    (A unitless target, -q / median q, weighs a flat crop like a deep one; on Middlebury's
+    leave-scene-out folds it fitted the training scenes far worse: MODEL.md.)"""
     from .real_data import RealPicture, read_inverse_depth
 
     q = read_inverse_depth(RealPicture(path.stem, path.parent.name, path, path, truth_kind, ""))
-    q = q / float(np.nanmedian(q))
-    return resize_disparity(-q, size)
+    return resize_disparity((-scale * q).astype(np.float32), size)
 
 
 def training_sources(root: str | Path, report: SkipReport, ignore_prints: bool = False) -> list[SampleSource]:
@@ -1003,8 +1011,8 @@ class TrainingSet:
         if kind == "gt" and aug.degrade > 0 and float(rng.random()) < aug.degrade:
             inp = degrade_like_footage(inp, rng)
         gt_d = gt_e = sat = None
-        if src.gt_disparity is not None and src.truth_kind is not None:  # a real picture: unitless, scale-free
-            gt_d = crop_flip(real_target(src.gt_disparity, src.truth_kind, size))
+        if src.gt_disparity is not None and src.truth_kind is not None:  # a real picture: scale-free
+            gt_d = crop_flip(real_target(src.gt_disparity, src.truth_kind, src.truth_scale, size) * px_scale)
         elif src.gt_disparity is not None:
             gt_d = crop_flip(resize_disparity(read_gt_disparity(src.gt_disparity, (w, h), src.unsupervised_ids), size)
                              * px_scale)

@@ -159,6 +159,32 @@ def read_inverse_depth(pic: RealPicture) -> np.ndarray:
     return q
 
 
+MIDDLEBURY_2001_SCALE = {"cones": 4.0, "teddy": 4.0, "venus": 8.0, "tsukuba": 16.0}
+"""Stored value per px of disparity in Middlebury 2001/2003's groundtruth.png."""
+KINECT_FOCAL_PX = 525.0
+"""A Kinect's focal length in px at 640 px width (the stereo-like disparity of depth sensors)."""
+KINECT_BASELINE_M = 0.075
+"""A Kinect's projector-camera baseline (m)."""
+_METRES_PER_UNIT = {"depth": 1.0 / 5000.0, "sun_depth": 1.0 / 1000.0}
+
+
+def disparity_scale(pic: RealPicture) -> float:
+    """Factor from :func:`read_inverse_depth` to a stereo disparity in px at the picture's width:
+    Middlebury's own disparity (2001/2003 divided by its stored scale); for depth sensors the
+    disparity a Kinect's own stereo pair would see (focal 525 px at 640 px width, baseline 7.5 cm),
+    so every real picture's target is in the same unit and weighs by its depth contrast."""
+    if pic.truth_kind == "disparity":
+        return 1.0 / MIDDLEBURY_2001_SCALE.get(pic.scene.split("/")[-1], 1.0) \
+            if pic.set == "middlebury2001_2003" else 1.0
+    import cv2
+
+    width = cv2.imread(str(pic.image), cv2.IMREAD_UNCHANGED).shape[1]
+    fb = KINECT_FOCAL_PX * width / 640.0 * KINECT_BASELINE_M
+    if pic.truth_kind == "nyu_raw":  # q = 1092.5 - raw, depth = 351.3 / q m
+        return fb / 351.3
+    return fb / _METRES_PER_UNIT[pic.truth_kind]  # q = 1 / stored value, stored = depth / (m per unit)
+
+
 def scene_folds(pictures: list[RealPicture], folds: int) -> list[list[str]]:
     """Scenes split into ``folds`` groups for leave-scene-out validation (round robin over the
     sorted scene names, so each fold mixes the sets)."""

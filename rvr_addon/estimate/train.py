@@ -323,7 +323,7 @@ class Trainer(TrainingRun):
         return {
             "engine_version": __version__,
             "data": [str(p) for p in s.data], "user_photos": [str(p) for p in s.user_photos],
-            "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop,
+            "iterations": s.iterations, "lr": s.lr, "batch": s.batch, "crop": s.crop, "grad_clip": s.grad_clip,
             "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share,
             "procedural_share": s.procedural_share, "degrade": s.degrade, "expose": s.expose, "seed": s.seed,
             "ignore_prints": s.ignore_prints, "real": [str(p) for p in s.real],

@@ -90,11 +90,15 @@ def test_exclusion_and_folds(real_root: Path):
 
 def test_target_sign_and_scale(real_root: Path):
     src = next(s for s in real_sources(real_root, SkipReport()) if s.name.endswith("Alpha/view1"))
-    t = real_target(src.gt_disparity, src.truth_kind, (64, 48))
+    t = real_target(src.gt_disparity, src.truth_kind, src.truth_scale, (64, 48))
     assert np.isnan(t[0]).all()
-    # nearer (larger disparity) -> smaller D; unitless: the median inverse depth maps to -1
-    assert t[20, 30] < t[40, 5]
-    assert np.nanmedian(t) == pytest.approx(-1.0)
+    # nearer (larger disparity) -> smaller D; in px of stereo disparity (Middlebury 2006: as stored)
+    assert t[20, 30] == -80 and t[40, 5] == -20
+    kin = next(s for s in real_sources(real_root, SkipReport()) if s.name == "kinect/ch7_1")
+    tk = real_target(kin.gt_disparity, kin.truth_kind, kin.truth_scale, (64, 48))
+    # a Kinect's own stereo disparity: 525 px * (64 / 640) * 0.075 m / z
+    assert tk[5, 5] == pytest.approx(-525 * 0.1 * 0.075 / 1.0, rel=1e-4)
+    assert tk[5, 40] == pytest.approx(-525 * 0.1 * 0.075 / 2.0, rel=1e-4)
     ts = TrainingSet(real_sources(real_root, SkipReport()), Augment(crop=32))
     sample = ts.draw(np.random.default_rng(0))
     assert sample.kind == "gt" and sample.disparity_invariant and sample.gt_exponent is None
