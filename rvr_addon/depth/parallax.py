@@ -14,27 +14,45 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 3. **Pair geometry.** Dense DIS flow both ways (:mod:`rvr_addon.temporal.flow`, cached per pair
    while both frames are in the window); the relative pose from flow correspondences sampled on
    a grid where the flow is forward-backward consistent (``cv2.findEssentialMat`` with RANSAC,
-   refined on its inliers, ``cv2.decomposeEssentialMat`` + cheirality). A pair whose dense median parallax after
-   de-rotation stays under MIN_DENSE_PARALLAX_PX is dropped.
+   refined on its inliers, ``cv2.decomposeEssentialMat`` + cheirality). A pair whose dense
+   median parallax after de-rotation stays under MIN_DENSE_PARALLAX_PX is dropped, and so is one
+   whose parallax does not dominate the flow its rotation makes (ROT_RATIO): a rolling shutter,
+   a focal length or lens distortion off and the frames' timing all leave false parallax in
+   proportion to the rotation (a pair between the two thresholds keeps part of its confidence).
 4. **Triangulation.** Per pixel, the depth along t's ray that best meets the flow's ray in the
    neighbour (linear least squares, vectorised over pixels), with a confidence: forward-backward
    flow agreement, triangulation angle (px of de-rotated parallax), distance to the epipolar
-   line (independent motion: people walking, cars) and positive depth in both views.
-5. **Fusion.** The neighbours' maps are brought to one scale (median ratio) and fused by a
-   confidence-weighted mean of the values that agree with their median; neighbours that
-   disagree (an object moving along the epipolar line) lower the confidence.
-6. **One scale per clip.** Two views give depth up to the pair's baseline. The chain fixes
-   it: a behind neighbour n was already output in the clip's scale, and the same pair
-   triangulated in n's view must match n's map, so their median ratio gives the pair's baseline
-   in the clip's unit. The first frame (or one after a stretch without parallax: info
-   ``scale_reset``) sets the unit: median inverse depth 1 on its trusted pixels.
+   line (independent motion: people walking, cars) and positive depth in both views. A depth
+   under half the baseline (Q_MAX) or far nearer than the bulk of the frame (SPIKE_RATIO) is a
+   flow error that happens to lie on the epipolar line and is dropped.
+5. **One scale per clip.** Two views give depth up to the pair's baseline. Every output frame
+   keeps its inverse depth at its tracks; for frame t, each earlier output frame n of the window
+   makes the tracks it shares with t 3-D points, PnP (RANSAC) on their positions in t gives t's
+   pose in the clip's unit and so their inverse depth in t, and per track the median over the
+   frames n is the prediction; each pair's scale is the median ratio of its map to it at the
+   tracks (several earlier frames, not one anchor pair: the scale does not random-walk). Without
+   enough predicted tracks, a behind neighbour n already output anchors it (the same pair
+   triangulated in n's view must match n's map), and without that the frame sets a new unit
+   (the first frame, or one after the tracks broke: info ``scale_reset``): median inverse depth
+   1 on its trusted pixels.
+6. **Fusion.** The neighbours' scaled maps are fused by a confidence-weighted mean of the values
+   that agree with their median; neighbours that disagree (an object moving along the epipolar
+   line) lower the confidence.
+7. **Signal to noise.** The frame's depth structure (robust std of its log inverse depth, at
+   least SNR_SIGNAL_FLOOR) over how much independent measurements of it disagree (the median
+   |log ratio| of two pairs' maps, the spread of a pair's map against the earlier frames'
+   prediction at the tracks): under SNR_RANGE the map holds nothing the noise does not, and the
+   whole frame's confidence goes down with it (small baselines against rotation, motion blur,
+   distant scenes), so the fusion falls back on the prior. The scale chain keeps the geometric
+   confidence.
 
 Output per frame: ``CueMap(name="parallax", metric=False, shift_free=True)`` at the frame's
 full size: inverse depth in 1/(clip unit) (bilinear upsampling of inverse depth), NaN where
 unknown, confidence 0..1 (nearest upsampling), info ``{"parallax", "neighbours",
-"median_angle_deg", "scale_reset", "reason"}``. A frame without parallax (still camera,
-rotation only, a plane, no texture) gets an empty cue (all NaN, confidence 0) whose reason says
-why.
+"median_angle_deg", "scale_reset", "reason"}`` and, with parallax, ``pair_parallax_px``,
+``focal_px``, ``focal_refined``, ``pair_disagreement``, ``track_spread``, ``snr``. A frame
+without parallax (still camera, rotation only, a plane, no texture, too little translation for
+its rotation) gets an empty cue (all NaN, confidence 0) whose reason says why.
 
 Intrinsics: the product does not know K; unless the caller passes one (px of the full frame),
 a pinhole with the principal point at the centre whose focal length starts at
@@ -103,6 +121,17 @@ FOCAL_PRIOR_SIGMA = 0.15
 """Uncertainty (std of log) of the 66 deg guess: the refined focal is the guess and the tracks'
 estimate weighted by their inverse variances (the estimate's from a bootstrap over triples)."""
 FOCAL_BOOTSTRAP = 64
+ROT_RATIO = (0.08, 0.16)
+"""A pair's median de-rotated parallax over the flow its rotation makes (px / px) under which
+it is dropped / from which it is fully trusted (rotation-proportional errors: rolling shutter,
+focal length, lens distortion, timing)."""
+SNR_SIGNAL_FLOOR = 0.1
+"""The signal of a frame's SNR is at least this (std of log inverse depth): a flat wall measured
+to a few % is a good answer."""
+SNR_RANGE = (2.0, 4.0)
+"""A frame's signal to noise (spread of its log inverse depth, robust std from the 10-90 %
+range, over the disagreement of independent measurements of it) under which the cue trusts nothing / from which it keeps its
+confidence."""
 SPIKE_RATIO = 4.0
 """A pair's inverse depth above this many times the 95th percentile of its trusted values is
 dropped (a near object covering under 5 % of the frame, or a flow error)."""
@@ -230,15 +259,10 @@ def triangulate(flow: np.ndarray, K: np.ndarray, R: np.ndarray, T: np.ndarray,
             epi.reshape(h, w).astype(np.float32), front.reshape(h, w))
 
 
-def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
-                   samples: int = POSE_SAMPLES) -> tuple[np.ndarray, np.ndarray, float, float] | None:
-    """Relative pose ``x_b = R x_a + T`` (|T| = 1) from dense flow samples on a grid.
-
-    Samples: about ``samples`` on a grid, where the forward-backward error ``fb_a`` is under FB_SAMPLE_PX
-    and the end point lies inside. Essential matrix by RANSAC (threshold E_THRESHOLD_PX),
-    re-estimated on its inliers (LMedS), decomposed. Returns (R, T,
-    median de-rotated parallax of the inliers in px, inlier ratio) or None (too few samples,
-    degenerate)."""
+def flow_samples(f_ab: np.ndarray, fb_a: np.ndarray, samples: int = POSE_SAMPLES) -> tuple[np.ndarray, np.ndarray] | None:
+    """(N, 2) px correspondences a -> b from dense flow: about ``samples`` on a grid, where the
+    forward-backward error ``fb_a`` is under FB_SAMPLE_PX and the end point lies inside (None:
+    too few)."""
     h, w = f_ab.shape[:2]
     step = max(int(np.sqrt(h * w / samples)), 1)
     ys, xs = np.mgrid[step // 2:h:step, step // 2:w:step]
@@ -247,9 +271,18 @@ def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
     ok = (e < FB_SAMPLE_PX) & (x2 >= 0) & (x2 <= w - 1) & (y2 >= 0) & (y2 <= h - 1)
     if ok.sum() < MIN_TRACKS * 2:
         return None
-    p1 = np.stack([xs[ok], ys[ok]], 1).astype(np.float64)
-    p2 = np.stack([x2[ok], y2[ok]], 1).astype(np.float64)
-    return pose_from_points(p1, p2, K, refine=True)
+    return (np.stack([xs[ok], ys[ok]], 1).astype(np.float64),
+            np.stack([x2[ok], y2[ok]], 1).astype(np.float64))
+
+
+def pose_from_flow(f_ab: np.ndarray, fb_a: np.ndarray, K: np.ndarray,
+                   samples: int = POSE_SAMPLES) -> tuple[np.ndarray, np.ndarray, float, float] | None:
+    """Relative pose ``x_b = R x_a + T`` (|T| = 1) from dense flow samples (:func:`flow_samples`):
+    essential matrix by RANSAC (threshold E_THRESHOLD_PX), re-estimated on its inliers (LMedS),
+    decomposed. Returns (R, T, median de-rotated parallax of the inliers in px, inlier ratio)
+    or None (too few samples, degenerate)."""
+    pts = flow_samples(f_ab, fb_a, samples)
+    return None if pts is None else pose_from_points(*pts, K, refine=True)
 
 
 def pose_from_points(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, refine: bool = False,
@@ -302,6 +335,11 @@ def _in_front(a: np.ndarray, b: np.ndarray, R: np.ndarray, T: np.ndarray) -> int
         z = -np.sum(c1 * c2, 0) / np.sum(c1 * c1, 0)
         z2 = z * Ra[2] + Tf[2, 0]
     return int(np.sum((z > 0) & (z2 > 0)))
+
+
+def rotation_px(R: np.ndarray, K: np.ndarray) -> float:
+    """How far (px) the rotation R alone moves the centre of the frame: focal length x angle."""
+    return float(K[0, 0] * np.linalg.norm(cv2.Rodrigues(np.asarray(R, np.float64))[0]))
 
 
 def derotated_parallax(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -572,6 +610,7 @@ class _Run:
         self.pairs: OrderedDict[tuple[int, int], _Pair | None] = OrderedDict()
         self.epoch = 0  # the current scale chain (a new one starts where the scale is reset)
         self.focal_refined = False
+        self.unstable = 0  # pairs of the current output frame dropped for too much rotation
 
     # ---------------------------------------------------------------- per input frame
 
@@ -800,7 +839,16 @@ class _Run:
         p = self.pair(t, buf[j])
         if p is None or p.R is None or p.parallax_px < MIN_DENSE_PARALLAX_PX:
             return
+        # errors that grow with the rotation (a rolling shutter, a focal length or lens
+        # distortion off, the frames' timing) leave false parallax in proportion to the flow the
+        # rotation makes: the pair's parallax must dominate it
+        lo, hi = ROT_RATIO
+        f_r = float(np.clip((p.parallax_px / max(rotation_px(p.R, self.K), 1e-6) - lo) / (hi - lo), 0.0, 1.0))
+        if f_r <= 0:
+            self.unstable += 1
+            return
         q, conf, ang = self._pair_map(t, p)
+        conf = conf * np.float32(f_r)
         if (conf > 0.5).sum() >= 100:
             maps.append((j, q, conf, ang, p))
 
@@ -812,9 +860,12 @@ class _Run:
         texture = len(t.ids) >= MIN_TRACKS
         moved = max(f.motion_px for f in buf)
         if not chosen:
-            return _empty(t.full_size, _judge(best, moved, texture, self.est.min_parallax_px)[1],
-                          track_parallax_px=round(best, 2))
+            ok, why = _judge(best, moved, texture, self.est.min_parallax_px)
+            if ok:  # a homography does not explain the tracks, but the de-rotated parallax is tiny
+                why = f"parallax under {MIN_DENSE_PARALLAX_PX} px once the rotation is removed: no baseline"
+            return _empty(t.full_size, why, track_parallax_px=round(best, 2))
         maps = []  # (j, q_raw, conf, angle, pair)
+        self.unstable = 0
         for j, _ in chosen:
             self._add_map(maps, t, buf, j)
         pred = self._track_prediction(buf, c)
@@ -826,18 +877,22 @@ class _Run:
             if prior:  # the earliest: the longest baseline, mostly
                 self._add_map(maps, t, buf, prior[0])
         if not maps:
-            return _empty(t.full_size, "flow or pose failed on every neighbour (no rigid parallax)",
-                          track_parallax_px=round(best, 2))
+            why = ("translation too weak against the rotation (rotation-borne errors would dominate)" if self.unstable
+                   else "flow or pose failed on every neighbour (no rigid parallax)")
+            return _empty(t.full_size, why, track_parallax_px=round(best, 2))
         # scale: from the tracks' inverse depth predicted by the earlier output frames, else
         # anchor on a neighbour already output in the clip's unit
         scales: dict[int, float] = {}
+        spreads: dict[int, float] = {}  # MAD of log(pair / prediction) at the tracks
         if pred is not None:
             xi, yi, qp = pred
             for j, q, conf, ang, p in maps:
                 qr = q[yi, xi]
                 ok = np.isfinite(qr) & (conf[yi, xi] > 0.5)
                 if ok.sum() >= MIN_SCALE_TRACKS:
-                    scales[j] = float(np.exp(np.median(np.log(qr[ok]) - np.log(qp[ok]))))
+                    lr = np.log(qr[ok]) - np.log(qp[ok])
+                    scales[j] = float(np.exp(np.median(lr)))
+                    spreads[j] = float(np.median(np.abs(lr - np.median(lr))))
         for j, q, conf, ang, p in maps:
             n = buf[j]
             if j in scales or n.q is None or n.epoch != self.epoch:
@@ -870,6 +925,12 @@ class _Run:
             qs.append(q / np.float32(r))
             cs.append(conf)
         Q, C = np.stack(qs), np.stack(cs)
+        disagree = []  # median |log ratio| of every two pairs' maps where both trust
+        for a in range(len(qs)):
+            for b in range(a + 1, len(qs)):
+                both = (C[a] > 0.5) & (C[b] > 0.5)
+                if both.sum() >= 100:
+                    disagree.append(float(np.median(np.abs(np.log(Q[a][both] / Q[b][both])))))
         if len(qs) == 1:
             q_out, c_out = Q[0], C[0] * np.float32(0.9)
         else:
@@ -887,14 +948,31 @@ class _Run:
             c_out = np.where(n_valid >= 2, c_or, 0.9 * W.max(0)).astype(np.float32)
             q_out = np.where(sw > 1e-6, q_out, np.nan).astype(np.float32)
         c_out = np.where(np.isfinite(q_out), c_out, 0).astype(np.float32)
+        # signal to noise: the spread of the frame's log inverse depth against how much two
+        # independent measurements of it disagree (pairs, or a pair and the earlier frames'
+        # prediction at the tracks); near 1 the map holds no structure the noise does not
+        noises = disagree + ([float(np.median(list(spreads.values())))] if spreads else [])
+        trusted = c_out > 0.5
+        snr, f_snr = None, 1.0
+        if noises and trusted.sum() >= 100:
+            p10, p90 = np.percentile(np.log(q_out[trusted]), [10, 90])
+            signal = max(float(p90 - p10) / 2.56, SNR_SIGNAL_FLOOR)
+            snr = signal / max(float(np.median(noises)), 1e-3)
+            f_snr = float(np.clip((snr - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0, 1))
+        # the scale chain keeps the geometric confidence (a noisy frame's depths still carry the
+        # clip's unit); the cue's confidence also carries the frame's signal to noise
         t.q, t.conf, t.epoch = q_out, c_out, self.epoch
         self._keep_track_depth(t)
+        c_out = c_out * np.float32(f_snr)
         ang_all = np.concatenate([a[3][a[2] > 0.5] for a in maps])
         info = {"parallax": True, "neighbours": [int(buf[j].index - t.index) for j, *_ in maps],
                 "median_angle_deg": round(float(np.degrees(np.median(ang_all))) if ang_all.size else 0.0, 4),
                 "pair_parallax_px": [round(m[4].parallax_px, 2) for m in maps],
                 "scale_reset": reset, "reason": "parallax",
                 "focal_px": round(float(self.K[0, 0]) * t.full_size[0] / self.size[0], 2),
-                "focal_refined": self.focal_refined}
+                "focal_refined": self.focal_refined,
+                "pair_disagreement": round(max(disagree), 4) if disagree else None,
+                "track_spread": round(max(spreads.values()), 4) if spreads else None,
+                "snr": None if snr is None else round(snr, 3)}
         q_full, c_full = upsample(q_out, c_out, t.full_size)
         return CueMap(NAME, q_full, c_full, metric=False, shift_free=True, info=info)

@@ -135,6 +135,17 @@ def test_rotating_camera_has_no_parallax():
     assert all(_empty(m) for m in maps)
 
 
+def test_turning_camera_with_little_translation_trusts_almost_nothing():
+    """1.5 deg of yaw and 2 cm of translation a frame (TUM fr1/rpy's kind of motion): the
+    parallax the translation makes is small against the rotation's flow and its errors, so the
+    cue trusts (almost) nothing and the fusion falls back on the prior."""
+    frames = [render(np.array([0.02 * i, 0.0, 0.0]), yaw_rad=np.radians(1.5 * i))[0] for i in range(12)]
+    maps = list(ParallaxEstimator(window=4).maps(iter(frames)))
+    cover = [float(np.mean(m.confidence > 0.5)) for m in maps]
+    assert np.mean(cover) < 0.12 and max(cover) < 0.3, cover  # measured 0.05, 0.16
+    assert all(m.info["reason"] for m in maps)
+
+
 def test_focal_length_is_refined_from_the_tracks():
     """A camera narrower than the 66 deg guess (50 deg), turning while it moves (a translation
     alone leaves the focal length unobservable): the refined focal length halves the guess's
