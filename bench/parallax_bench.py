@@ -16,7 +16,12 @@ perfect, 1 = a constant; scale and shift fitted per frame):
   hold across frames?), and ``scale_spread``: the spread (std of log) over frames of the
   per-frame median of cue / GT on trusted pixels (0 = one scale for the clip);
 
-and the speed (s per frame of ParallaxEstimator.maps, frames already decoded) at 640x360 and
+- ``focal_ratio``: the focal length the cue used (info ``focal_px``; with ``guess``, refined from
+  the tracks) over the data set's;
+
+for kivy_cityCC0 (no ground truth) the coverage, the frames with parallax and the median
+signal to noise of its frames (:func:`self_consistency`); and the speed (s per frame of
+ParallaxEstimator.maps, frames already decoded, focal refinement included) at 640x360 and
 1920x1080 input. The last stdout line is one flat JSON object (DESIGN.md "Benchmarks").
 """
 from __future__ import annotations
@@ -84,6 +89,7 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
     n = len(clip) if frames is None else min(frames, len(clip))
     est = ParallaxEstimator(K=K)
     trusted, filled, ramp, cover, ratios, nonempty = [], [], [], [], [], 0
+    focal = None
     pool_p, pool_g, rows = [], [], []
     t0 = time.perf_counter()
     for i, m in enumerate(est.maps(clip.rgb_frames(0, n))):
@@ -92,6 +98,8 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
         valid = np.isfinite(gt)
         tr = valid & (m.confidence > 0.5)
         nonempty += bool(m.info.get("parallax"))
+        if focal is None and m.info.get("focal_px"):
+            focal = float(m.info["focal_px"])
         cover.append(float(tr.sum() / max(valid.sum(), 1)))
         ramp.append(affine_invariant_error(vertical_ramp(*gt.shape), gt, valid))
         if tr.sum() >= 100:
@@ -120,9 +128,33 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
                               if pool_p else 1.0),
         "scale_spread": float(np.std(np.log(ratios))) if len(ratios) > 1 else 0.0,
         "frames": float(n),
+        "focal_ratio": (focal / float(clip.K[0, 0])) if focal else 0.0,
         "eval_s_per_frame": elapsed / max(n, 1),
     }
     return out
+
+
+def self_consistency(path: Path, frames: int) -> dict[str, float]:
+    """A clip without ground truth (kivy_cityCC0: distant buildings, a slow move): the share of
+    trusted pixels and of frames with parallax, and the median of the frames' signal to noise
+    (info ``snr``: depth structure over the disagreement of independent measurements)."""
+    cap = cv2.VideoCapture(str(path))
+    imgs = []
+    while len(imgs) < frames:
+        ok, bgr = cap.read()
+        if not ok:
+            break
+        imgs.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+    cap.release()
+    cover, snr, nonempty = [], [], 0
+    for m in ParallaxEstimator().maps(iter(imgs)):
+        cover.append(float(np.mean(m.confidence > 0.5)))
+        nonempty += bool(m.info.get("parallax"))
+        if m.info.get("snr") is not None:
+            snr.append(float(m.info["snr"]))
+    n = max(len(imgs), 1)
+    return {"coverage": float(np.mean(cover)) if cover else 0.0, "parallax_frames": nonempty / n,
+            "snr_median": float(np.median(snr)) if snr else 0.0, "frames": float(len(imgs))}
 
 
 def speed(root: Path, size: tuple[int, int], frames: int) -> float:
@@ -161,6 +193,10 @@ def main() -> None:
             for name, v in res.items():
                 result[f"{prefix}.{name}"] = round(float(v), 4)
             print(f"{key} {kname}: " + ", ".join(f"{k}={v:.3f}" for k, v in res.items()), file=sys.stderr)
+    kivy = Path(args.data) / "clips" / "kivy_cityCC0.mpg"
+    if kivy.is_file():
+        for name, v in self_consistency(kivy, 60).items():
+            result[f"estimate.parallax.kivy.{name}"] = round(float(v), 4)
     holo = base / CLIPS["hololens"]
     if holo.is_dir():
         result["estimate.parallax.360p.s_per_frame"] = round(speed(holo, (640, 360), args.speed_frames), 4)
