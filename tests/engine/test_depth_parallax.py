@@ -215,12 +215,14 @@ def test_upsample_keeps_holes_and_shape():
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real_video_depth/hololens_office absent")
-def test_real_hololens_error_on_trusted_pixels():
+@pytest.mark.parametrize("known_k", [True, False], ids=["true_K", "guessed_K"])
+def test_real_hololens_error_on_trusted_pixels(known_k):
+    """Measured: 0.28 / 0.59 covered with the true K, 0.25 / 0.62 with the guessed (refined) one."""
     from rvr_addon.depth.real_video import open_rgbd_clip
     clip = open_rgbd_clip(REAL)
     start, stop = 14, 26
     errs, cover = [], []
-    maps = ParallaxEstimator(K=clip.K, window=4).maps(clip.rgb_frames(start, stop))
+    maps = ParallaxEstimator(K=clip.K if known_k else None, window=4).maps(clip.rgb_frames(start, stop))
     for i, m in enumerate(maps):
         gt = clip.frame(start + i).inverse_depth
         tr = (m.confidence > 0.5) & np.isfinite(gt)
@@ -232,5 +234,5 @@ def test_real_hololens_error_on_trusted_pixels():
     assert np.mean(cover) > BOUND_HOLO_COVER
 
 
-BOUND_HOLO_MEAN = 0.5
-BOUND_HOLO_COVER = 0.3
+BOUND_HOLO_MEAN = 0.35
+BOUND_HOLO_COVER = 0.45
