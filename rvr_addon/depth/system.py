@@ -43,12 +43,14 @@ class DepthPlan:
     reasons: dict[str, str] = field(default_factory=dict)
     hfov_deg: float = DEFAULT_HFOV_DEG
     fusion: FusionSettings = field(default_factory=FusionSettings)
+    hfov_given: bool = False
+    """The user gave the field of view; else parallax refines the focal length from the clip."""
 
     def key(self) -> dict:
         """The cache-key part (settings that change the result)."""
         out = {"method": self.method, "cues": list(self.cues)}
         if len(self.cues) > 1:
-            out["hfov_deg"] = self.hfov_deg
+            out["hfov_deg"] = self.hfov_deg if self.hfov_given else "guessed"
             out["fusion"] = self.fusion.describe()
         return out
 
@@ -85,8 +87,9 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
         raise InputError(f"--hfov {hfov}: give the camera's horizontal field of view in degrees (1..179), "
                          f"e.g. {DEFAULT_HFOV_DEG:g} for a phone's main camera")
     fusion = fusion or FusionSettings()
+    given = hfov_deg is not None
     if method in ("network", "external"):
-        return DepthPlan(method, (method,), {}, hfov, fusion)
+        return DepthPlan(method, (method,), {}, hfov, fusion, given)
     reasons: dict[str, str] = {}
     cues: list[str] = []
     if method in ("auto", "parallax"):
@@ -113,7 +116,7 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
             reasons["people"] = f"off: {why.splitlines()[0]}"
             log.warning("depth: the people cue is off (%s); depth comes from the other cues", why.splitlines()[0])
     cues.append("network")
-    return DepthPlan(method, tuple(cues), reasons, hfov, fusion)
+    return DepthPlan(method, tuple(cues), reasons, hfov, fusion, given)
 
 
 def _limited(frames: Iterable[np.ndarray], n: int) -> Iterator[np.ndarray]:
@@ -153,9 +156,11 @@ class DepthStream:
             from .cues import focal_px
             from .parallax import ParallaxEstimator
 
-            w, h = size
-            f = focal_px(w, plan.hfov_deg)
-            K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+            K = None  # parallax refines the focal length from the clip's own tracks
+            if plan.hfov_given:
+                w, h = size
+                f = focal_px(w, plan.hfov_deg)
+                K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
             self.parallax = ParallaxEstimator(K=K)
 
     def close(self) -> None:
