@@ -3,11 +3,12 @@
 Per frame, in metric inverse depth ``q`` (1/m, larger = nearer; :mod:`.cues`):
 
 1. **Scale of the clip.** People (face size) are metric. Parallax is known up to one clip-wide
-   scale: it is fixed from the people where both see the same pixels (a running median of the
-   ratio over the clip), else once, at the first frame with parallax, so that the median trusted
-   pixel is ``default_distance_m`` away. The clip keeps that scale, so D of one scene point is
-   the same in every frame; where the cue restarts its own unit (``scale_reset``) the scale is
-   carried over from the previous frame's fused depth.
+   scale: it is fixed once, at the first frame with enough trusted parallax, from the people
+   where both see the same pixels, else so that the median trusted pixel is
+   ``default_distance_m`` away. The clip keeps that scale (a face found later, or a false one on
+   a poster, does not rescale it), so D of one scene point is the same in every frame; where the
+   cue restarts its own unit (``scale_reset``) the scale is carried over from the previous
+   frame's fused depth.
 2. **The network.** Its D is affine in q (``q = a D + b``, a < 0). Where geometry (parallax)
    covers the frame, a and b are fitted by weighted least squares on the trusted pixels; with
    people alone (a still camera) only b is fitted (on the people) and a keeps the lens's
@@ -123,7 +124,7 @@ class DepthFuser:
         self.settings = settings
         self.K = lens_constant(self.width)
         self.parallax_scale: float | None = None
-        self._ratios: list[float] = []
+        self.scale_source: str | None = None
         self.q_ref = 1.0 / settings.default_distance_m
         """Inverse depth (1/m) put at D = 0: the same for every clip and chunk; a frame without
         cues keeps the network's own D, which is then consistent with ``fit = (-1/K, q_ref)``."""
@@ -134,22 +135,26 @@ class DepthFuser:
     # -------------------------------------------------------------- pieces
 
     def _parallax_metric(self, par: CueMap, people: CueMap | None) -> tuple[np.ndarray, np.ndarray]:
-        """Parallax inverse depth in 1/m with the clip's scale (fixed or refined by people)."""
+        """Parallax inverse depth in 1/m with the clip's scale: fixed once, at the first frame
+        with enough trusted parallax (by the people there, else the default distance), and kept
+        (a later face, or a false one on a poster, must not rescale the clip halfway)."""
         s = self.settings
         q, c = par.inverse_depth, par.confidence
         ok = np.isfinite(q) & (c > 0.5) & (q > 0)
-        if people is not None:
-            both = ok & np.isfinite(people.inverse_depth) & (people.confidence > 0.5)
+        if self.parallax_scale is None and ok.sum() > 50:
+            both = np.zeros_like(ok)
+            if people is not None:
+                both = ok & np.isfinite(people.inverse_depth) & (people.confidence > 0.5)
             if both.sum() > 50:
-                self._ratios.append(float(np.median(people.inverse_depth[both] / q[both])))
-                self._ratios = self._ratios[-200:]
-                self.parallax_scale = float(np.median(self._ratios))
+                self.parallax_scale = float(np.median(people.inverse_depth[both] / q[both]))
+                self.scale_source = "people"
+            else:
+                self.parallax_scale = (1.0 / s.default_distance_m) / float(np.median(q[ok]))
+                self.scale_source = "default distance"
         elif par.info.get("scale_reset") and self._last_q is not None and ok.sum() > 50 \
-                and self._last_q.shape == q.shape and not self._ratios:
+                and self._last_q.shape == q.shape:
             # the cue started a new unit: carry the clip's scale over from the previous frame
             self.parallax_scale = float(np.median(self._last_q[ok] / q[ok]))
-        if self.parallax_scale is None and ok.sum() > 50:
-            self.parallax_scale = (1.0 / s.default_distance_m) / float(np.median(q[ok]))
         scale = self.parallax_scale if self.parallax_scale is not None else 0.0
         return (q * scale).astype(np.float32), np.where(scale > 0, c, 0.0).astype(np.float32)
 
@@ -280,4 +285,5 @@ class DepthFuser:
         for n in names[:-1]:
             self.used[n] += 1
         return FusedDepth(d, conf.astype(np.float32), names,
-                          {"fit": [float(fit[0]), float(fit[1])], "parallax_scale": self.parallax_scale})
+                          {"fit": [float(fit[0]), float(fit[1])], "parallax_scale": self.parallax_scale,
+                           "scale_source": self.scale_source})
