@@ -143,6 +143,30 @@ def import_mediapipe() -> Any:
     return mp
 
 
+def open_models(who: str, segment: bool, faces: float | None, mesh: bool) -> dict[str, Any]:
+    """MediaPipe's bundled solutions by name: ``segment`` (selfie segmentation, landscape),
+    ``faces`` (full-range face detection at this score threshold; None: not loaded), ``mesh``
+    (face mesh with refined lips and irises, one face per call). ``who`` names the caller in the
+    PeopleModelError raised, with the fix, when one cannot load."""
+    mp = import_mediapipe()
+    models: dict[str, Any] = {}
+    try:
+        if segment:
+            models["segment"] = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=1)
+        if faces is not None:
+            models["faces"] = mp.solutions.face_detection.FaceDetection(min_detection_confidence=faces,
+                                                                        model_selection=1)
+        if mesh:
+            models["mesh"] = mp.solutions.face_mesh.FaceMesh(
+                static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.5)
+    except Exception as exc:  # mediapipe raises RuntimeError/ValueError from its C++ graph
+        for model in models.values():
+            model.close()
+        raise PeopleModelError(f"{who} could not load mediapipe's bundled models ({exc}); "
+                               f"reinstall {MEDIAPIPE_PIN}: {INSTALL_HINT}") from exc
+    return models
+
+
 def check_frame(frame: np.ndarray) -> np.ndarray:
     """The frame as a contiguous (H, W, 3) uint8 RGB array, or InputError saying what is wrong."""
     if not isinstance(frame, np.ndarray):
@@ -240,22 +264,9 @@ class PeopleDetector:
         """Build the three MediaPipe solutions once (PeopleModelError when one cannot load)."""
         if self._models is not None:
             return self._models
-        mp = import_mediapipe()
-        models: dict[str, Any] = {}
-        try:
-            models["segment"] = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=1)
-            models["faces"] = mp.solutions.face_detection.FaceDetection(
-                min_detection_confidence=self.min_face_score, model_selection=1)
-            if self.use_face_mesh:
-                models["mesh"] = mp.solutions.face_mesh.FaceMesh(
-                    static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.5)
-        except Exception as exc:  # mediapipe raises RuntimeError/ValueError from its C++ graph
-            for model in models.values():
-                model.close()
-            raise PeopleModelError(f"the people depth cue could not load mediapipe's bundled models ({exc}); "
-                                   f"reinstall {MEDIAPIPE_PIN}: {INSTALL_HINT}") from exc
-        self._models = models
-        return models
+        self._models = open_models("the people depth cue", segment=True, faces=self.min_face_score,
+                                   mesh=self.use_face_mesh)
+        return self._models
 
     def close(self) -> None:
         """Release the models (safe to call twice; a later frame loads them again)."""

@@ -401,11 +401,15 @@ class EstimateJob:
             self._close()
             return False
         index = self.start + self.done
-        size = (frame.shape[1], frame.shape[0])
+        return self._record(index, (frame.shape[1], frame.shape[0]), lambda: self.compute(frame, index))
+
+    def _record(self, index: int, size: tuple[int, int], result) -> bool:
+        """Write frame ``index``'s (D, E) = ``result()`` unless the cache holds it; count it; False
+        once the range is done."""
         if self.cache.is_valid(index, size):
             self.reused += 1
         else:
-            self.cache.write(index, *self.compute(frame, index))
+            self.cache.write(index, *result())
             self.computed += 1
         self.done += 1
         if self.done >= self.total:
@@ -423,17 +427,7 @@ class EstimateJob:
                 raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
             return False
         frame, d, e, _fused = item
-        index = self.start + self.done
-        if self.cache.is_valid(index, (frame.shape[1], frame.shape[0])):
-            self.reused += 1
-        else:
-            self.cache.write(index, d, e)
-            self.computed += 1
-        self.done += 1
-        if self.done >= self.total:
-            self._close()
-            return False
-        return True
+        return self._record(self.start + self.done, (frame.shape[1], frame.shape[0]), lambda: (d, e))
 
     def compute(self, frame: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(D, E) of one frame: network and/or external depth."""

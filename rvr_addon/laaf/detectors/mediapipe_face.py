@@ -52,20 +52,8 @@ class MediaPipeFaces:
         # the people cue's import: it stubs matplotlib where Blender's Python lacks it
         from ...depth import people
 
-        mp = people.import_mediapipe()
-        models: dict[str, Any] = {}
-        try:
-            if self._want["faces"]:
-                models["faces"] = mp.solutions.face_detection.FaceDetection(
-                    min_detection_confidence=self.min_score, model_selection=1)
-            if self._want["mesh"]:
-                models["mesh"] = mp.solutions.face_mesh.FaceMesh(
-                    static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.5)
-        except Exception as exc:  # mediapipe raises RuntimeError/ValueError from its C++ graph
-            for model in models.values():
-                model.close()
-            raise people.PeopleModelError(f"LAAF's MediaPipe faces could not load mediapipe's bundled models ({exc}); "
-                                          f"reinstall {people.MEDIAPIPE_PIN}: {people.INSTALL_HINT}") from exc
+        models = people.open_models("LAAF's MediaPipe faces", segment=False,
+                                    faces=self.min_score if self._want["faces"] else None, mesh=self._want["mesh"])
         self._models = models
         return models
 
