@@ -8,7 +8,8 @@ Default clips: every video in ../shared/data/clips. For each, frames 0..K+10 run
 same depth system as ``rvr estimate --depth-method auto`` (rvr_addon.depth.system), frame K is
 shown; D is coloured near = red, far = blue (the 2-98 % range of each map); the refocused frame
 is rendered by our renderer focused on the nearest person's face (the frame's centre without
-people) at aperture scale 3. Writes OUT/<clip>.jpg and OUT/contact_sheet.jpg (all clips).
+people) at aperture scale 3. Writes OUT/contact_sheet.jpg (all clips; with --each also
+OUT/<clip>.jpg per clip).
 """
 from __future__ import annotations
 
@@ -80,17 +81,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frame", type=int, default=12)
     ap.add_argument("--weights", type=Path)
     ap.add_argument("-o", "--output", type=Path, default=ROOT / "docs" / "depth")
+    ap.add_argument("--each", action="store_true", help="also write one picture per clip")
     a = ap.parse_args(argv)
     clips = a.clips or sorted((ROOT.parent / "shared" / "data" / "clips").glob("*.*"))
     a.output.mkdir(parents=True, exist_ok=True)
     rows = []
     for clip in clips:
         row = sheet(clip, a.frame, a.weights)
-        cv2.imwrite(str(a.output / f"{clip.stem}.jpg"), row, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        if a.each:
+            cv2.imwrite(str(a.output / f"{clip.stem}.jpg"), row, [cv2.IMWRITE_JPEG_QUALITY, 85])
         rows.append(row)
-        print(f"wrote {a.output / (clip.stem + '.jpg')}")
+        print(f"{clip.name}: done")
     if rows:
         cv2.imwrite(str(a.output / "contact_sheet.jpg"), np.vstack(rows), [cv2.IMWRITE_JPEG_QUALITY, 80])
+        print(f"wrote {a.output / 'contact_sheet.jpg'}")
     return 0
 
 

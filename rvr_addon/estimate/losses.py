@@ -511,12 +511,14 @@ def exponent_losses(exponent: torch.Tensor, target: torch.Tensor, saturated: tor
     return l_e, l_e0
 
 
-def exponent_keep_loss(exponent: torch.Tensor, teacher: torch.Tensor) -> torch.Tensor:
-    """L_keep: mean |50 E - 50 E_teacher| over every pixel and channel (natural-log radiance gain).
+def exponent_keep_loss(exponent: torch.Tensor, teacher: torch.Tensor, gate: torch.Tensor) -> torch.Tensor:
+    """L_keep: mean |50 E - 50 E_teacher| (natural-log radiance gain) over the pixels where E can
+    be non-zero (``gate`` > 0: the bright, possibly clipped ones) and their channels; 0 without any.
 
     Pictures without HDR ground truth (real pictures with measured depth) keep the HDR recovery
-    the network had before: its E on the same input, from the frozen weights it started from."""
-    return (K_HDR * (exponent - teacher)).abs().mean()
+    the network had before: its E on the same input, from the frozen weights it started from.
+    (A mean over every pixel let E drift: clipped pixels are rare in such pictures.)"""
+    return _masked_mean((K_HDR * (exponent - teacher)).abs(), (gate > 0).expand_as(exponent))
 
 
 def supervised_loss(disparity_rel: torch.Tensor, gt_disparity_rel: torch.Tensor | None, exponent: torch.Tensor,

@@ -51,7 +51,7 @@ from .losses import (
     LossResult, LossWeights, VGG19Features, exponent_keep_loss, fit_scale_shift, load_vgg19, render_member,
     supervised_loss, to_display, total_loss,
 )
-from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, disparity_to_px, grow_state_dict
+from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, clip_gate, disparity_to_px, grow_state_dict
 
 CHECKPOINT_FORMAT = "rvr-laaf-estimator-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-estimator/1"
@@ -177,7 +177,8 @@ def _supervised_only(model: EstimatorNet, out, sample: TrainSample, weights: Los
     if gt_e is None and teacher is not None and image is not None:
         with torch.no_grad():
             kept = teacher(image).exponent
-        keep = exponent_keep_loss(out.exponent, kept)
+        cfg = model.config
+        keep = exponent_keep_loss(out.exponent, kept, clip_gate(image, cfg.gate_lo, cfg.gate_hi))
         total = total + keep
         parts["sup_keep"] = keep.item()
     parts.update(disparity_metrics(out.disparity_rel.detach(), gt_d, sample.frame_width, sample.native_width,
