@@ -68,7 +68,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator
+from typing import Callable, Iterable, Iterator
 
 import cv2
 import numpy as np
@@ -562,17 +562,21 @@ class ParallaxEstimator:
             yield run.output(buf, done - buf[0].index)
             done += 1
 
-    def camera_translates(self, frames: Iterable[np.ndarray], max_frames: int = 60) -> tuple[bool, str]:
+    def camera_translates(self, frames: Iterable[np.ndarray], max_frames: int = 60,
+                          exclude: Callable[[np.ndarray], np.ndarray | None] | None = None) -> tuple[bool, str]:
         """Cheap clip-level check from the tracks alone (no dense flow): does the camera move
         with enough baseline for parallax anywhere in the first ``max_frames`` frames?
-        Returns (translates, reason)."""
+        ``exclude``: frame -> (H, W) bool mask of pixels whose tracks do not count (the people:
+        a talking head in front of a flat backdrop moves every track there is, and that is no
+        baseline), or None. Returns (translates, reason)."""
         run = _Run(self)
         buf: list[_Frame] = []
         best, moved, texture = 0.0, 0.0, False
         for i, frame in enumerate(frames):
             if i >= max_frames:
                 break
-            buf.append(run.add(i, frame, buf[-1] if buf else None))
+            mask = exclude(frame) if exclude is not None else None
+            buf.append(run.add(i, frame, buf[-1] if buf else None, mask))
             buf = buf[-(self.window + 1):]
             texture |= len(buf[-1].ids) >= MIN_TRACKS
             moved = max(moved, buf[-1].motion_px)
@@ -614,7 +618,7 @@ class _Run:
 
     # ---------------------------------------------------------------- per input frame
 
-    def add(self, i: int, frame: np.ndarray, prev: _Frame | None) -> _Frame:
+    def add(self, i: int, frame: np.ndarray, prev: _Frame | None, exclude: np.ndarray | None = None) -> _Frame:
         if frame.ndim != 3 or frame.shape[2] != 3:
             raise ValueError(f"parallax: frame {i} must be (H, W, 3) RGB, got {frame.shape}")
         full = (int(frame.shape[1]), int(frame.shape[0]))
@@ -627,10 +631,15 @@ class _Run:
             raise ValueError(f"parallax: frame {i} is {full[0]}x{full[1]} but the clip's first frame is "
                              f"{self.full[0]}x{self.full[1]}; a clip keeps one resolution")
         fr = _Frame(i, to_flow_gray(frame, self.size), full)
-        self._track(prev, fr)
+        keep = None
+        if exclude is not None and exclude.any():
+            keep = cv2.resize((~exclude.astype(bool)).astype(np.uint8), self.size, interpolation=cv2.INTER_NEAREST)
+        self._track(prev, fr, keep)
         return fr
 
-    def _track(self, prev: _Frame | None, fr: _Frame) -> None:
+    def _track(self, prev: _Frame | None, fr: _Frame, keep: np.ndarray | None = None) -> None:
+        """Track prev's corners into fr and top up new ones; ``keep`` (analysis size, 1 = usable):
+        tracks outside it are dropped and no corner is started there."""
         ids, pts = np.zeros(0, np.int64), np.zeros((0, 2), np.float32)
         if prev is not None and len(prev.ids):
             p0 = prev.pts.reshape(-1, 1, 2)
@@ -642,11 +651,15 @@ class _Run:
             p1 = p1.reshape(-1, 2)
             good = ((st.ravel() == 1) & (st2.ravel() == 1) & (np.hypot(*(pb.reshape(-1, 2) - prev.pts).T) < 0.7)
                     & (p1[:, 0] >= 0) & (p1[:, 0] <= w - 1) & (p1[:, 1] >= 0) & (p1[:, 1] <= h - 1))
+            if keep is not None:
+                xi = np.clip(np.rint(p1[:, 0]), 0, w - 1).astype(int)
+                yi = np.clip(np.rint(p1[:, 1]), 0, h - 1).astype(int)
+                good &= keep[yi, xi] > 0
             ids, pts = prev.ids[good], p1[good].astype(np.float32)
             if good.any():
                 fr.motion_px = float(np.median(np.hypot(*(pts - prev.pts[good]).T)))
         if len(ids) < 0.7 * MAX_CORNERS:
-            mask = np.full(fr.gray.shape, 255, np.uint8)
+            mask = np.full(fr.gray.shape, 255, np.uint8) if keep is None else (keep > 0).astype(np.uint8) * 255
             for x, y in pts.astype(int):
                 cv2.circle(mask, (int(x), int(y)), 7, 0, -1)
             new = cv2.goodFeaturesToTrack(fr.gray, MAX_CORNERS - len(ids), 0.01, 7, mask=mask, blockSize=5)

@@ -91,6 +91,7 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
         return DepthPlan(method, (method,), {}, hfov, fusion, given)
     reasons: dict[str, str] = {}
     cues: list[str] = []
+    people_ok, people_why = people_available() if method in ("auto", "people") else (False, "")
     if method in ("auto", "parallax"):
         if method == "parallax":
             cues.append("parallax")
@@ -100,13 +101,29 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
         else:
             from .parallax import ParallaxEstimator
 
-            moving, why = ParallaxEstimator().camera_translates(_limited(frames(), PROBE_FRAMES),
-                                                                max_frames=PROBE_FRAMES)
+            exclude, detector = None, None
+            if people_ok:  # tracks on people are no baseline (a talking head moves every track it holds)
+                from .people import PeopleDetector, PeopleModelError
+
+                detector = PeopleDetector(hfov_deg=hfov, face_mesh=False)
+
+                def exclude(frame: np.ndarray) -> np.ndarray | None:
+                    try:
+                        persons = detector(frame).persons
+                    except PeopleModelError:
+                        return None
+                    return np.any([p.mask > 0.3 for p in persons], axis=0) if persons else None
+            try:
+                moving, why = ParallaxEstimator().camera_translates(_limited(frames(), PROBE_FRAMES),
+                                                                    max_frames=PROBE_FRAMES, exclude=exclude)
+            finally:
+                if detector is not None:
+                    detector.close()
             reasons["parallax"] = why
             if moving:
                 cues.append("parallax")
     if method in ("auto", "people"):
-        ok, why = people_available()
+        ok, why = people_ok, people_why
         if ok:
             cues.append("people")
         elif method == "people":

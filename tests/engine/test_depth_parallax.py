@@ -113,6 +113,22 @@ def test_camera_translates_on_a_translating_clip(translating):
     assert ok, reason
 
 
+def test_tracks_on_excluded_pixels_are_no_baseline(translating):
+    """The auto probe masks people out: with every pixel excluded nothing is tracked; with the
+    left half excluded the right half's tracks still show the camera's translation."""
+    frames = translating[0]
+    ok, reason = ParallaxEstimator().camera_translates(iter(frames), exclude=lambda f: np.ones(f.shape[:2], bool))
+    assert not ok and "texture" in reason
+
+    def left_half(f):
+        m = np.zeros(f.shape[:2], bool)
+        m[:, : f.shape[1] // 2] = True
+        return m
+
+    ok, reason = ParallaxEstimator().camera_translates(iter(frames), exclude=left_half)
+    assert ok, reason
+
+
 def test_still_camera_gives_empty_cues_and_says_so():
     rng = np.random.default_rng(3)
     rgb, _ = render(np.zeros(3))

@@ -73,6 +73,7 @@ class FakePeople:
         c[y0:y1, x0:x1] = 1.0
 
         class Result:
+            persons = []  # the auto probe masks people's tracks; this fake's person has no matte
             cue = CueMap("people", q, c, metric=True, shift_free=True, info={"people": 1})
 
         return Result()
