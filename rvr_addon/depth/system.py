@@ -135,6 +135,31 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
     return DepthPlan(method, tuple(cues), reasons, hfov, fusion, given)
 
 
+def record(plan: DepthPlan, probe_start: int, hfov_given: float | None) -> dict:
+    """The plan as meta.json keeps it (``depth_plan``), enough to reuse it without probing again."""
+    return {"method": plan.method, "cues": list(plan.cues), "reasons": plan.reasons, "probe_start": probe_start,
+            "hfov_asked": hfov_given}
+
+
+def plan_from_record(rec: object, method: str, probe_start: int, hfov_deg: float | None) -> DepthPlan | None:
+    """The ``auto`` plan recorded by an earlier run on the same source (meta.json's ``depth_plan``)
+    when it was made for the same method, range start and field of view, and MediaPipe is as
+    available as it was then; else None (plan again). A resumed or repeated run then skips the
+    probe (a decode of up to PROBE_FRAMES frames with people detection)."""
+    if not isinstance(rec, dict) or method != "auto" or rec.get("method") != method:
+        return None
+    if rec.get("probe_start") != probe_start or rec.get("hfov_asked") != hfov_deg:
+        return None
+    cues = rec.get("cues")
+    if not isinstance(cues, list) or not cues or cues[-1] != "network":
+        return None
+    if ("people" in cues) != people_available()[0]:
+        return None
+    hfov = DEFAULT_HFOV_DEG if hfov_deg is None else float(hfov_deg)
+    reasons = rec.get("reasons") if isinstance(rec.get("reasons"), dict) else {}
+    return DepthPlan(method, tuple(str(c) for c in cues), dict(reasons), hfov, FusionSettings(), hfov_deg is not None)
+
+
 def _limited(frames: Iterable[np.ndarray], n: int) -> Iterator[np.ndarray]:
     for i, f in enumerate(frames):
         if i >= n:

@@ -299,6 +299,7 @@ class EstimateJob:
         ``settings.weights`` (or the shipped weights) when the network is needed."""
         from ..io.video import probe_clip
         from .cache import CACHE_FORMAT, ClipCache, source_fingerprint
+        from ..depth.system import record as depth_record
 
         s = self.settings = settings
         if s.depth_points and (s.depth_scale != 1.0 or s.depth_offset != 0.0):
@@ -315,14 +316,14 @@ class EstimateJob:
                                      list(s.depth_points))
             self.depth.maps.check_length(stop)
             self.depth.fit(self.start, size)
-        self.plan = self._plan(size)
+        source = source_fingerprint(s.input)
+        self.plan = self._plan(size, source["hash"])
         self.model: LoadedModel | None = None
         if not s.no_hdr:
             self.model = model if model is not None else load_estimator(
                 s.weights if s.weights is not None else default_weights())
         self.estimator = Estimator(self.model, s.max_pixels) if self.model is not None else None
         model_hash = self.model.model_hash if self.model is not None else "none"
-        source = source_fingerprint(s.input)
         key = {"format": CACHE_FORMAT, "engine_version": __version__, "model_hash": model_hash,
                "source_hash": source["hash"], "resolution": list(size),
                "depth": self.depth.describe() if self.depth is not None else
@@ -331,8 +332,7 @@ class EstimateJob:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
-                "depth_plan": {"method": self.plan.method, "cues": list(self.plan.cues),
-                               "reasons": self.plan.reasons}}
+                "depth_plan": depth_record(self.plan, self.start, s.hfov_deg)}
         info.update(_earlier_depth_cues(Path(s.output), key))  # kept when every frame is reused
         self.cache = ClipCache(s.output, key, info)
         self.stream = None
@@ -346,9 +346,11 @@ class EstimateJob:
         self._frames = None
         self._finished = False
 
-    def _plan(self, size: tuple[int, int]):
-        """The clip's :class:`~rvr_addon.depth.system.DepthPlan` (which cues run, and why)."""
-        from ..depth.system import plan_depth
+    def _plan(self, size: tuple[int, int], source_hash: str):
+        """The clip's :class:`~rvr_addon.depth.system.DepthPlan` (which cues run, and why): the
+        one an earlier run on the same source recorded in the cache when it still applies, else a
+        new one (``auto`` probes the range's first frames)."""
+        from ..depth.system import plan_depth, plan_from_record
         from ..io.video import iter_frames
 
         s = self.settings
@@ -362,7 +364,15 @@ class EstimateJob:
             raise InputError("--depth-method external needs --depth MAPS (a depth or disparity sequence)")
         if s.no_hdr and method != "external":
             raise InputError("--no-hdr needs --depth: without external depth the network is what estimates D")
-        plan = plan_depth(method, lambda: iter_frames(s.input, start=self.start, stop=self.stop), s.hfov_deg)
+        earlier = None
+        try:
+            meta = json.loads((Path(s.output) / "meta.json").read_text())
+            if isinstance(meta, dict) and meta.get("source_hash") == source_hash:
+                earlier = plan_from_record(meta.get("depth_plan"), method, self.start, s.hfov_deg)
+        except (OSError, ValueError):
+            pass
+        plan = earlier or plan_depth(method, lambda: iter_frames(s.input, start=self.start, stop=self.stop),
+                                     s.hfov_deg)
         log.debug("%s", plan.summary())
         return plan
 

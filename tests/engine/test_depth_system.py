@@ -165,13 +165,23 @@ def test_network_keeps_the_old_key_and_auto_records_the_plan(still_clip, tmp_pat
     assert (job.computed, job.reused) == (6, 0)
     m = meta(cache)
     assert m["depth"]["method"] == "auto" and m["depth"]["cues"] == ["people", "network"]
-    assert m["depth_plan"] == {"method": "auto", "cues": ["people", "network"], "reasons": job.plan.reasons}
+    assert m["depth_plan"] == {"method": "auto", "cues": ["people", "network"], "reasons": job.plan.reasons,
+                               "probe_start": 0, "hfov_asked": None}
     used = m["depth_cues"]["used"]
     assert used["frames"] == 6 and used["people"] == 6 and used["parallax"] == 0
     assert "people on 6 of 6 frames" in job.text
     assert not np.array_equal(frames_d(cache, 6)[0], net_d[0])
-    # the same again reuses everything and keeps the record of the cues
-    again = run(still_clip, cache, weights=weights)
+    # the same again reuses everything and keeps the record of the cues, without probing the clip again
+    def no_probe(*a, **k):
+        raise AssertionError("the recorded plan should have been reused")
+
+    real_plan = system.plan_depth
+    system.plan_depth = no_probe
+    try:
+        again = run(still_clip, cache, weights=weights)
+    finally:
+        system.plan_depth = real_plan
+    assert again.plan.cues == ("people", "network") and again.plan.reasons == job.plan.reasons
     assert (again.computed, again.reused) == (0, 6)
     assert meta(cache)["depth_cues"]["used"] == used
     # back to network: stale again, recomputed to the network's own D
