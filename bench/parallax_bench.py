@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rvr_addon.depth.parallax import ParallaxEstimator  # noqa: E402
 from rvr_addon.depth.real_video import open_rgbd_clip  # noqa: E402
-from rvr_addon.estimate.evaluate import affine_invariant_error, vertical_ramp  # noqa: E402
+from rvr_addon.estimate.evaluate import affine_invariant_error, colour_map, vertical_ramp  # noqa: E402
 
 CLIPS = {"hololens": "hololens_office", "tum": "tum_fr1_rpy_window"}
 
@@ -59,14 +59,6 @@ def fill_nearest(q: np.ndarray) -> np.ndarray | None:
     return lut[labels]
 
 
-def _colour(q: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    x = np.clip((np.nan_to_num(q, nan=lo) - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.applyColorMap((x * 255).astype(np.uint8), cv2.COLORMAP_TURBO)[..., ::-1]
-    rgb = rgb.copy()
-    rgb[~np.isfinite(q)] = 0
-    return rgb
-
-
 def sheet_row(rgb: np.ndarray, gt: np.ndarray | None, q: np.ndarray, conf: np.ndarray, width: int = 320) -> np.ndarray:
     """frame | GT inverse depth (or blank) | cue inverse depth (trusted, percentiles) | confidence."""
     ok = np.isfinite(q) & (conf > 0.5)
@@ -74,10 +66,10 @@ def sheet_row(rgb: np.ndarray, gt: np.ndarray | None, q: np.ndarray, conf: np.nd
     tiles = [rgb]
     if gt is not None:
         g = gt[np.isfinite(gt)]
-        tiles.append(_colour(gt, *np.percentile(g, [2, 98])) if g.size else np.zeros_like(rgb))
+        tiles.append(colour_map(gt, *np.percentile(g, [2, 98]), cv2.COLORMAP_TURBO) if g.size else np.zeros_like(rgb))
     else:
         tiles.append(np.zeros_like(rgb))
-    tiles.append(_colour(np.where(ok, q, np.nan), lo, hi))
+    tiles.append(colour_map(np.where(ok, q, np.nan), lo, hi, cv2.COLORMAP_TURBO))
     tiles.append(np.repeat((np.clip(conf, 0, 1) * 255).astype(np.uint8)[..., None], 3, 2))
     h = int(round(rgb.shape[0] * width / rgb.shape[1]))
     return np.concatenate([cv2.resize(t, (width, h), interpolation=cv2.INTER_AREA) for t in tiles], 1)

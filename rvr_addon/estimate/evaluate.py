@@ -249,11 +249,14 @@ def motorcycle() -> tuple[np.ndarray, np.ndarray]:
 # ------------------------------------------------------------------------------ pictures
 
 
-def _colour(d: np.ndarray, lo: float, hi: float) -> np.ndarray:
+def colour_map(d: np.ndarray, lo: float, hi: float, colormap: int | None = None) -> np.ndarray:
+    """(H, W, 3) uint8 RGB picture of a map over [lo, hi] (OpenCV colormap, viridis by default);
+    non-finite pixels black."""
     import cv2
 
     u = np.clip((np.nan_to_num(d, nan=lo) - lo) / max(hi - lo, 1e-9), 0, 1)
-    rgb = cv2.applyColorMap((u * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1]
+    cmap = cv2.COLORMAP_VIRIDIS if colormap is None else colormap
+    rgb = cv2.applyColorMap((u * 255).astype(np.uint8), cmap)[..., ::-1]
     rgb = rgb.copy()
     rgb[~np.isfinite(d)] = 0
     return rgb
@@ -268,10 +271,10 @@ def comparison_image(image: np.ndarray, gt: np.ndarray, pred: np.ndarray, path: 
     ok = np.isfinite(gt)
     lo, hi = (np.percentile(gt[ok], [2, 98]) if ok.any() else (0.0, 1.0))
     s, t = fit_scale_shift(pred, gt)
-    panels = [("input", image), ("GT D", _colour(gt, lo, hi))]
+    panels = [("input", image), ("GT D", colour_map(gt, lo, hi))]
     if show_raw:
-        panels.append(("ours D", _colour(pred, lo, hi)))
-    panels.append((f"ours D fitted (x{s:.2g})", _colour(s * pred + t, lo, hi)))
+        panels.append(("ours D", colour_map(pred, lo, hi)))
+    panels.append((f"ours D fitted (x{s:.2g})", colour_map(s * pred + t, lo, hi)))
     h = image.shape[0]
     scale = max(1, int(round(160 / h))) if h < 160 else 1
     tiles = []

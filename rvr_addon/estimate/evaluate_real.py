@@ -66,7 +66,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from ..errors import InputError, OutputError
-from .evaluate import _colour, affine_invariant_error, comparison_image, pearson, vertical_ramp
+from .evaluate import affine_invariant_error, colour_map, comparison_image, pearson, vertical_ramp
 
 log = logging.getLogger(__name__)
 
@@ -497,11 +497,11 @@ def _video_sheet(sheet: dict[int, dict[str, np.ndarray]], methods: list[str], pa
         gt = item["gt"]
         ok = np.isfinite(gt)
         lo, hi = np.percentile(gt[ok], [2, 98]) if ok.any() else (0.0, 1.0)
-        tiles = [item["rgb"], _colour(gt, lo, hi)]
+        tiles = [item["rgb"], colour_map(gt, lo, hi)]
         for m in methods:
             d = item[m]
             s, t = fit_scale_shift(d, gt)
-            tiles.append(_colour(s * d + t, lo, hi))
+            tiles.append(colour_map(s * d + t, lo, hi))
         h = int(round(gt.shape[0] * width / gt.shape[1]))
         rows.append(np.concatenate([cv2.resize(np.ascontiguousarray(x, np.uint8), (width, h),
                                                interpolation=cv2.INTER_AREA) for x in tiles], 1))
@@ -719,7 +719,7 @@ def _aperture_sheet(pair: AperturePair, ours: np.ndarray, gauss: np.ndarray, d: 
 
     lo, hi = np.percentile(d, [2, 98])
     tiles = [pair.image, (pair.target * 255 + 0.5).astype(np.uint8), (np.clip(ours, 0, 1) * 255 + 0.5).astype(np.uint8),
-             (np.clip(gauss, 0, 1) * 255 + 0.5).astype(np.uint8), _colour(d, lo, hi)]
+             (np.clip(gauss, 0, 1) * 255 + 0.5).astype(np.uint8), colour_map(d, lo, hi)]
     h = int(round(pair.image.shape[0] * width / pair.image.shape[1]))
     out = []
     for label, t in zip(("input f/16", "real wide", "ours", "Gaussian", "D"), tiles):
