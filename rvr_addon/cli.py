@@ -58,6 +58,19 @@ def add_run_args(p: argparse.ArgumentParser, iterations: int) -> None:
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its checkpoint")
 
 
+def add_depth_method_args(p, note: str = "") -> None:
+    """``--depth-method`` and ``--hfov`` (rvr estimate, rvr batch); ``note`` ends the first's help."""
+    from .depth.system import METHODS
+
+    p.add_argument("--depth-method", choices=METHODS, default="auto",
+                   help="where D comes from: auto (default: parallax where the camera translates, people layers "
+                        "where there are people, the network elsewhere, fused), parallax, people, network (the "
+                        "network alone) or external (--depth MAPS)" + note)
+    p.add_argument("--hfov", type=float, metavar="DEG",
+                   help="the camera's horizontal field of view in degrees for the geometric cues (default: 66, a "
+                        "phone's main camera, refined from the clip where it moves)")
+
+
 def add_run_control_args(p: argparse.ArgumentParser, checkpoint_every: int) -> None:
     """``--threads``, ``--checkpoint-every``, ``--seed`` of a training run."""
     p.add_argument("--threads", type=int, metavar="N",
@@ -362,13 +375,7 @@ def add_estimate_parser(sub) -> None:
     p.add_argument("--depth-is-distance", action="store_true",
                    help="the maps hold distance (larger = farther): use 1/map before the affine")
     p.add_argument("--no-hdr", action="store_true", help="with --depth: E = 0 (no network needed)")
-    p.add_argument("--depth-method", choices=("auto", "parallax", "people", "network", "external"), default="auto",
-                   help="where D comes from: auto (default: parallax where the camera translates, people layers "
-                        "where there are people, the network elsewhere, fused), parallax, people, network (the "
-                        "network alone) or external (--depth MAPS)")
-    p.add_argument("--hfov", type=float, metavar="DEG",
-                   help="the camera's horizontal field of view for the geometric cues (default 66, a phone's "
-                        "main camera)")
+    add_depth_method_args(p)
     p.add_argument("--start", type=int, default=0, help="first frame (0-based)")
     p.add_argument("--stop", type=int, help="stop before this frame")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")

@@ -5,7 +5,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from ..cli import on_interrupt
+from ..cli import add_depth_method_args, on_interrupt
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -38,13 +38,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--depth-offset", type=float, default=0.0, help="D = scale * map + offset")
     g.add_argument("--depth-is-distance", action="store_true", help="the maps hold distance: 1/map before the affine")
     g.add_argument("--no-hdr", action="store_true", help="with --depth-root: E = 0 (no network needed)")
-    g.add_argument("--depth-method", choices=("auto", "parallax", "people", "network", "external"), default="auto",
-                   help="where D comes from (rvr estimate --depth-method; default auto: parallax where the camera "
-                        "translates, people, the network, fused). Fused depth keeps clip-wide state, so a clip's "
-                        "estimate is then one task (not chunked); network and external are chunked")
-    g.add_argument("--hfov", type=float, metavar="DEG",
-                   help="the cameras' horizontal field of view in degrees for the geometric cues (default 66, a "
-                        "phone's main camera)")
+    add_depth_method_args(g, ". Fused depth keeps clip-wide state, so a clip's estimate is then one task (not "
+                             "chunked); network and external are chunked")
     g.add_argument("--temporal-window", choices=("causal", "centred"), default=d.window,
                    help="temporal filter window (rvr stabilize --window; default %(default)s)")
     g.add_argument("-M", "--temporal-frames", dest="m", type=int, default=d.m, metavar="M",
