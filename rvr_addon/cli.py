@@ -497,6 +497,9 @@ def build_parser() -> argparse.ArgumentParser:
     from .batch.commands import add_parser as add_batch_parser
 
     add_batch_parser(sub)  # rvr batch
+    from .refocus.commands import add_parser as add_refocus_parser
+
+    add_refocus_parser(sub)  # rvr refocus
     return parser
 
 

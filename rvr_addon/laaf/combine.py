@@ -42,6 +42,8 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "salient": ("saliency",),
     "learned": ("afnet",),  # AF-Net (rvr_addon/afnet): proposes NFTs itself, needs trained weights
 }
+DEFAULT_PRESET = "conversation"
+"""The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
 FALLBACKS = {"conversation": "faces", "action": "salient"}
 PRIMARY = {"action": "action", "conversation": "speech"}
 INITIAL_CHAIN = ("face", "saliency")  # the first focus when the preset finds nothing on frame 0

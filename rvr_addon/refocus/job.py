@@ -1,0 +1,298 @@
+"""What ``rvr refocus`` takes (:class:`RefocusSettings`) and the one job that runs it
+(:func:`refocus_job`: a :class:`~rvr_addon.refocus.chain.JobChain` of the engine's own jobs).
+
+The clip's work folder (``--cache``; default ``OUT_DIR/rvr_cache/STEM-HASH``) holds what a
+re-run reuses: ``clip.mp4`` (the working copy, when the clip is resized or cut), ``cache/``
+(D and E per frame, stabilized: the cache ``rvr estimate`` writes) and ``focus-KEY.json`` (the
+autofocus decision for those depth maps and these focus settings). A run interrupted anywhere
+continues where it stopped; the outputs appear only when complete.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .. import __version__
+from ..errors import InputError
+from ..io.paths import temp_sibling
+from ..render.aperture import ApertureSpec
+from .chain import JobChain, Stage
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MAX_SIZE = 1280
+"""Long side (px) the pipeline works at unless told otherwise (``--max-size 0``: the clip's own)."""
+
+STAGE_COST = {"working copy": 0.02, "estimate": 0.30, "stabilize": 0.12, "autofocus": 0.07, "render": 0.20,
+              "before | after": 0.05, "contact sheet": 0.01}
+"""Relative seconds per frame of each stage at 640x360 on 2 cores (measured; for the progress
+bar's ETA only)."""
+
+
+@dataclass
+class RefocusSettings:
+    """input: the clip (video or image sequence). output: the refocused .mp4. cache: the clip's
+    work folder (None: ``OUT_DIR/rvr_cache/STEM-HASH``). preset: LAAF preset (None with
+    focus_on: a pinned subject only). focus_on: (x, y) px of the source clip to focus on and
+    track from the first frame, instead of autofocus. aperture: aperture scale (1 = the
+    reference lens wide open; 0 = no blur). spec: aperture shape. start / stop: frame range
+    (0-based, stop exclusive). max_size: long side in px to work at (None/0: full size).
+    side_by_side / preview: also write a before | after MP4 / a contact-sheet PNG there.
+    depth_method, hfov_deg: ``rvr estimate``'s. window_s, causal: LAAF's look-ahead.
+    weights: estimator weights (None: the shipped ones). fps: of an image-sequence input.
+    stabilize: run the temporal filter on D and E (paper 4.2)."""
+
+    input: Path
+    output: Path
+    cache: Path | None = None
+    preset: str | None = None
+    focus_on: tuple[float, float] | None = None
+    aperture: float = 1.0
+    spec: ApertureSpec = field(default_factory=ApertureSpec)
+    start: int = 0
+    stop: int | None = None
+    max_size: int | None = DEFAULT_MAX_SIZE
+    side_by_side: Path | None = None
+    preview: Path | None = None
+    depth_method: str = "auto"
+    hfov_deg: float | None = None
+    window_s: float = 2.0
+    causal: bool = False
+    weights: Path | None = None
+    fps: float | None = None
+    stabilize: bool = True
+    preview_rows: int = 4
+
+
+def default_work_folder(source: Path, output: Path) -> Path:
+    """``OUT_DIR/rvr_cache/STEM-HASH``: the clip's work folder beside the output (HASH: 8 hex of
+    the source fingerprint, so two clips of one name never share it)."""
+    from ..estimate.cache import source_fingerprint
+
+    digest = source_fingerprint(source)["hash"]
+    return Path(output).parent / "rvr_cache" / f"{Path(source).stem}-{str(digest)[:8]}"
+
+
+def derived_path(output: Path, suffix: str) -> Path:
+    """``OUT_DIR/STEM<suffix>`` (e.g. ``_side_by_side.mp4``, ``_sheet.png``, ``.focus.json``)."""
+    output = Path(output)
+    return output.with_name(output.stem + suffix)
+
+
+def focus_key(cache: Path, settings: dict) -> str:
+    """16 hex naming an autofocus decision: the cache's key and stabilization record (what the
+    depth maps are) and the focus settings."""
+    meta = json.loads((Path(cache) / "meta.json").read_text())
+    from ..estimate.cache import KEY_FIELDS
+
+    record = {k: meta.get(k) for k in KEY_FIELDS}
+    record.update(stabilized=meta.get("stabilized"), focus=settings, engine_version=__version__)
+    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _copy_atomic(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_sibling(dst, dst.suffix)
+    try:
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+@dataclass
+class RefocusRun:
+    """What a run decided and where everything went (filled in as the stages finish)."""
+
+    settings: RefocusSettings
+    work: Path
+    clip: Path
+    cache: Path
+    focus_file: Path | None = None
+    outputs: list[Path] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    frames: int = 0
+    size: tuple[int, int] = (0, 0)
+
+
+def check_outputs(s: RefocusSettings) -> None:
+    """Refuse outputs that would overwrite the clip or each other (before anything runs)."""
+    from ..pipeline import VIDEO_SUFFIXES
+
+    if Path(s.output).suffix.lower() not in VIDEO_SUFFIXES:
+        raise InputError(f"-o {s.output}: the refocused video is a movie file; give a name ending in .mp4")
+    outs = [Path(s.output)] + [p for p in (s.side_by_side, s.preview) if p is not None]
+    seen: dict[str, Path] = {}
+    src = Path(s.input).resolve()
+    for p in outs:
+        r = str(Path(p).resolve())
+        if r == str(src) or (Path(p).exists() and src.exists() and os.path.samefile(p, src)):
+            raise InputError(f"the output '{p}' is the input clip '{s.input}': choose another output name")
+        if r in seen:
+            raise InputError(f"'{p}' is given for two outputs; give each its own name")
+        seen[r] = p
+    if s.side_by_side is not None and Path(s.side_by_side).suffix.lower() not in VIDEO_SUFFIXES:
+        raise InputError(f"--side-by-side {s.side_by_side}: give a name ending in .mp4")
+    if s.preview is not None and Path(s.preview).suffix.lower() not in (".png", ".jpg", ".jpeg"):
+        raise InputError(f"--preview {s.preview}: give a name ending in .png or .jpg")
+
+
+def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
+    """The chain of stages of one ``rvr refocus`` run and the record it fills in."""
+    from ..io.video import probe_clip
+    from .proxy import ProxyJob, needs_proxy
+
+    check_outputs(s)
+    if not Path(s.input).exists():
+        raise InputError(f"the clip '{s.input}' was not found; check the path")
+    if not (s.aperture >= 0):
+        raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
+    if s.max_size is not None and s.max_size < 0:
+        raise InputError(f"--max-size {s.max_size}: give a long side in px (e.g. 1280), or 0 for the clip's size")
+    source = probe_clip(s.input, fps=s.fps)
+    work = Path(s.cache) if s.cache is not None else default_work_folder(Path(s.input), Path(s.output))
+    proxy = needs_proxy(source, s.max_size, s.start, s.stop)
+    run = RefocusRun(settings=s, work=work, clip=Path(s.input), cache=work / "cache")
+    stages: list[Stage] = []
+    factor = 1.0
+    if proxy:
+        probe = ProxyJob(Path(s.input), work / "x.mp4", s.max_size, s.start, s.stop, fps=s.fps)
+        w, h = probe.size
+        name = f"clip_{w}x{h}_{probe.start}_{probe.stop}.mp4"
+        run.clip = work / name
+        factor = w / source.width
+        run.frames, run.size = probe.total, (w, h)
+        if (w, h) != (source.width, source.height):
+            run.notes.append(f"working at {w}x{h} (the clip is {source.width}x{source.height}; --max-size 0 keeps "
+                             f"its size)")
+
+        def build_proxy():
+            if run.clip.is_file():
+                return None  # made by an earlier run (written atomically: complete)
+            return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, s.stop, fps=s.fps)
+
+        stages.append(Stage("working copy", STAGE_COST["working copy"] * probe.total, build_proxy))
+    else:
+        run.frames, run.size = source.frame_count, (source.width, source.height)
+    n = run.frames
+    px = run.size[0] * run.size[1] / (640 * 360)
+
+    def build_estimate():
+        from ..estimate.infer import EstimateJob, EstimateSettings
+
+        job = EstimateJob(EstimateSettings(input=run.clip, output=run.cache, weights=s.weights,
+                                           depth_method=s.depth_method, hfov_deg=s.hfov_deg, fps=s.fps))
+        run.notes.append(job.plan.summary())
+        return job
+
+    stages.append(Stage("estimate", STAGE_COST["estimate"] * n * px, build_estimate))
+    if s.stabilize:
+        def build_stabilize():
+            from ..temporal.job import StabilizeJob, StabilizeSettings
+
+            job = StabilizeJob(StabilizeSettings(cache=run.cache, input=run.clip))
+            return job if job.total else None
+
+        stages.append(Stage("stabilize", STAGE_COST["stabilize"] * n * px, build_stabilize))
+
+    focus_on = None if s.focus_on is None else (s.focus_on[0] * factor, s.focus_on[1] * factor)
+    focus_settings = {"preset": s.preset, "focus_on": focus_on, "aperture": s.aperture, "window_s": s.window_s,
+                      "causal": s.causal}
+
+    def build_autofocus():
+        from ..laaf.lookahead import AutofocusJob, AutofocusSettings
+
+        key = focus_key(run.cache, focus_settings)
+        run.focus_file = run.work / f"focus-{key}.json"
+        if run.focus_file.is_file():
+            run.notes.append(f"focus: reused {run.focus_file.name} (same depth, same focus settings)")
+            return None
+        nfts = None
+        if focus_on is not None:
+            nfts = [pinned_target(focus_on, run.size)]
+        return AutofocusJob(AutofocusSettings(input=run.clip, cache=run.cache, preset=s.preset, nfts=nfts,
+                                              window_s=s.window_s, causal=s.causal, aperture=s.aperture,
+                                              fps=s.fps))
+
+    def finish_autofocus(job) -> None:
+        from ..laaf.focusfile import write_focus_file
+
+        result = job.result
+        write_focus_file(run.focus_file, result)
+        used = result.settings.get("preset_used") or ("pinned subject" if focus_on else "manual")
+        note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""
+        run.notes.append(f"focus: {used}, {len(result.nfts)} target(s), {len(result.composed.pulls)} pull(s){note}")
+
+    stages.append(Stage("autofocus", STAGE_COST["autofocus"] * n * px, build_autofocus, finish_autofocus, frames=n))
+
+    def build_render():
+        from ..pipeline import RenderJob, RenderSettings
+
+        return RenderJob(RenderSettings(input=run.clip, depth=run.cache, hdr=run.cache, outputs=[Path(s.output)],
+                                        track=run.focus_file, spec=s.spec, fps=s.fps))
+
+    def finish_render(job) -> None:
+        run.outputs.append(Path(s.output))
+        focus_copy = derived_path(Path(s.output), ".focus.json")
+        _copy_atomic(run.focus_file, focus_copy)
+        run.outputs.append(focus_copy)
+
+    stages.append(Stage("render", STAGE_COST["render"] * n * px, build_render, finish_render))
+    if s.side_by_side is not None:
+        def build_sbs():
+            from .sidebyside import SideBySideJob
+
+            return SideBySideJob(run.clip, Path(s.output), Path(s.side_by_side))
+
+        stages.append(Stage("before | after", STAGE_COST["before | after"] * n * px, build_sbs,
+                            lambda job: run.outputs.append(Path(s.side_by_side))))
+    if s.preview is not None:
+        stages.append(Stage("contact sheet", STAGE_COST["contact sheet"] * n * px,
+                            lambda: OneShot(lambda: _sheet(run, s)),
+                            lambda job: run.outputs.append(Path(s.preview))))
+    return JobChain(stages), run
+
+
+def _sheet(run: RefocusRun, s: RefocusSettings) -> None:
+    from .preview import write_contact_sheet
+
+    write_contact_sheet(Path(s.preview), run.clip, run.cache, Path(s.output), run.focus_file, rows=s.preview_rows)
+
+
+class OneShot:
+    """A job of one step (a short task run in the chain like the others)."""
+
+    def __init__(self, fn) -> None:
+        self.fn = fn
+        self.progress = 0.0
+        self.text = ""
+
+    def step(self) -> bool:
+        """Run the task; always False (done after one step)."""
+        if self.progress < 1.0:
+            self.fn()
+            self.progress = 1.0
+        return False
+
+    def cancel(self) -> None:
+        """Nothing to stop between steps."""
+        self.progress = 1.0
+
+
+def pinned_target(point: tuple[float, float], size: tuple[int, int]):
+    """The manual NFT of ``--focus-on X,Y`` (px of the working clip): due on the first frame,
+    a box of a tenth of the frame's width around the point, tracked from there."""
+    from ..laaf.nft import NFT
+
+    w, h = size
+    x = min(max(float(point[0]), 0.0), w - 1.0)
+    y = min(max(float(point[1]), 0.0), h - 1.0)
+    side = max(8.0, w / 10)
+    box = (max(0.0, x - side / 2), max(0.0, y - side / 2), min(side, w - max(0.0, x - side / 2)),
+           min(side, h - max(0.0, y - side / 2)))
+    return NFT(x=x, y=y, t=0, box=box, source="manual")

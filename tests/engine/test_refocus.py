@@ -1,0 +1,174 @@
+"""rvr refocus: the one command from a clip to a refocused video (estimate -> stabilize ->
+autofocus -> render, + before | after video and contact sheet), its re-use of finished work,
+resume after Ctrl-C, pinned focus, the working copy (resize / range) and refused outputs.
+
+Clips are 64x36, 12 frames (tests/batch_synth.py); depth from the shipped network alone
+(``--depth-method network``) keeps them fast and deterministic."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from batch_synth import N, make_clip
+from rvr_addon.cli import build_parser, main
+from rvr_addon.io.video import iter_frames, probe_clip
+from rvr_addon.refocus.chain import JobChain, Stage
+from rvr_addon.refocus.commands import settings_from_args
+from rvr_addon.refocus.proxy import proxy_size
+
+FAST = ["--depth-method", "network", "-q"]
+
+
+@pytest.fixture(scope="module")
+def clip(tmp_path_factory) -> Path:
+    return make_clip(tmp_path_factory.mktemp("refocus") / "clip.mp4", seed=3)
+
+
+@pytest.fixture(scope="module")
+def reference(clip, tmp_path_factory):
+    """One complete run with every output; returns its folder."""
+    out = tmp_path_factory.mktemp("ref")
+    assert main(["refocus", str(clip), "-o", str(out / "r.mp4"), "--preview", "--side-by-side", *FAST]) == 0
+    return out
+
+
+def frames_of(path: Path) -> np.ndarray:
+    return np.stack(list(iter_frames(path)))
+
+
+def test_one_command_writes_the_video_its_focus_file_a_sheet_and_a_before_after(clip, reference):
+    info = probe_clip(reference / "r.mp4")
+    assert (info.width, info.height, info.frame_count) == (64, 36, N)
+    doc = json.loads((reference / "r.focus.json").read_text())
+    assert len(doc["per_frame"]["focus"]) == N and doc["settings"].get("preset_used")
+    assert all(np.isfinite(v) for v in doc["per_frame"]["focus"])
+    sbs = probe_clip(reference / "r_side_by_side.mp4")
+    assert (sbs.width, sbs.frame_count) == (2 * 64 + 4, N)
+    import cv2
+
+    sheet = cv2.imread(str(reference / "r_sheet.png"))
+    assert sheet is not None and sheet.shape[1] == 1500 and sheet.shape[0] > 100
+    work = list((reference / "rvr_cache").iterdir())
+    assert len(work) == 1 and work[0].name.startswith("clip-")
+    assert (work[0] / "cache" / "meta.json").is_file() and list(work[0].glob("focus-*.json"))
+
+
+def test_a_second_run_reuses_the_depth_and_the_focus_decision(clip, reference, capsys):
+    before = frames_of(reference / "r.mp4")
+    assert main(["refocus", str(clip), "-o", str(reference / "r.mp4"), *FAST]) == 0
+    printed = capsys.readouterr().out
+    assert "reused" in printed and "autofocus" in printed.split("reused")[-1]
+    np.testing.assert_array_equal(frames_of(reference / "r.mp4"), before)
+
+
+def test_ctrl_c_keeps_the_work_and_the_same_command_continues(clip, reference, tmp_path, monkeypatch, capsys):
+    from rvr_addon.pipeline import RenderJob
+
+    original = RenderJob.step
+    calls = {"n": 0}
+
+    def interrupted(self):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(RenderJob, "step", interrupted)
+    out = tmp_path / "r.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), *FAST]) == 130
+    err = capsys.readouterr().err
+    assert "interrupted during render" in err and "run the same command again" in err
+    assert not out.exists() and not [p for p in tmp_path.iterdir() if p.name.startswith(".r.mp4")]
+    monkeypatch.setattr(RenderJob, "step", original)
+    assert main(["refocus", str(clip), "-o", str(out), *FAST]) == 0
+    assert "estimate" not in capsys.readouterr().out.split("reused")[0].split("time:")[-1]
+    np.testing.assert_array_equal(frames_of(out), frames_of(reference / "r.mp4"))
+
+
+def test_focus_on_pins_the_subject_at_that_point(clip, tmp_path):
+    out = tmp_path / "pinned.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), "--focus-on", "17,18", "--cache", str(tmp_path / "w"),
+                 *FAST]) == 0
+    doc = json.loads((tmp_path / "pinned.focus.json").read_text())
+    first = doc["nfts"][0]
+    assert first["source"] == "manual" and first["t"] == 0 and (first["x"], first["y"]) == (17.0, 18.0)
+    assert doc["settings"].get("preset") is None
+    assert (tmp_path / "w" / "cache" / "meta.json").is_file()
+
+
+def test_max_size_and_a_range_make_a_working_copy_of_that_size_and_length(clip, tmp_path):
+    out = tmp_path / "small.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), "--max-size", "32", "--start", "2", "--duration", "0.25",
+                 *FAST]) == 0
+    info = probe_clip(out)
+    assert (info.width, info.height, info.frame_count) == (32, 18, 6)  # 0.25 s at 24 fps
+    doc = json.loads((tmp_path / "small.focus.json").read_text())
+    assert doc["clip"]["width"] == 32
+
+
+def test_an_output_that_is_the_input_is_refused_before_anything_runs(clip, tmp_path, capsys):
+    data = clip.read_bytes()
+    assert main(["refocus", str(clip), "-o", str(clip.parent / ".." / clip.parent.name / clip.name), *FAST]) == 2
+    assert "is the input clip" in capsys.readouterr().err
+    assert clip.read_bytes() == data
+    assert main(["refocus", str(clip), "-o", str(tmp_path / "x.mov.txt"), *FAST]) == 2
+
+
+def test_f_stop_is_an_aperture_relative_to_the_f2_reference_lens(clip):
+    args = build_parser().parse_args(["refocus", str(clip), "--f-stop", "1"])
+    assert settings_from_args(args).aperture == pytest.approx(2.0)
+    args = build_parser().parse_args(["refocus", str(clip), "--f-stop", "4"])
+    s = settings_from_args(args)
+    assert s.aperture == pytest.approx(0.5) and s.output == clip.with_name("clip_refocused.mp4")
+    args = build_parser().parse_args(["refocus", str(clip), "--aperture", "0"])
+    assert settings_from_args(args).aperture == 0.0
+
+
+def test_proxy_size_keeps_the_aspect_and_even_sides():
+    assert proxy_size(1920, 1080, 1280) == (1280, 720)
+    assert proxy_size(1080, 1920, 1280) == (720, 1280)
+    assert proxy_size(640, 360, 1280) == (640, 360)
+    assert proxy_size(1919, 1079, None) == (1919, 1079)
+    assert proxy_size(101, 3, 50) == (50, 2)
+
+
+class _Job:
+    def __init__(self, n):
+        self.n, self.done, self.total, self.cancelled = n, 0, n, False
+
+    @property
+    def progress(self):
+        return self.done / self.n
+
+    def step(self):
+        self.done += 1
+        return self.done < self.n
+
+    def cancel(self):
+        self.cancelled = True
+
+
+def test_job_chain_runs_stages_in_turn_weights_progress_and_cancels_the_running_one():
+    jobs, finished = [], []
+
+    def make(n):
+        def build():
+            jobs.append(_Job(n))
+            return jobs[-1]
+        return build
+
+    chain = JobChain([Stage("a", 1.0, make(2), finished.append), Stage("skip", 5.0, lambda: None),
+                      Stage("b", 3.0, make(4))])
+    seen = [chain.progress]
+    while chain.step():
+        seen.append(chain.progress)
+    assert seen == sorted(seen) and chain.progress == 1.0
+    assert finished == [jobs[0]] and chain.skipped == ["skip"] and len(jobs) == 2
+    chain = JobChain([Stage("a", 1.0, make(3)), Stage("b", 1.0, make(3))])
+    chain.step()
+    assert chain.frame_text() == "frame 1/3"
+    chain.cancel()
+    assert jobs[-1].cancelled and not chain.step() and "cancelled during a" in chain.text
