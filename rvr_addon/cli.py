@@ -103,9 +103,10 @@ def add_render_parser(sub) -> None:
                        description="Render a shallow-DOF video from frames + a disparity sequence "
                                    "(+ an HDR exponent sequence) and a focus track or constants.")
     p.add_argument("input", nargs="?", type=Path, help="video file, image folder, glob or frame pattern")
-    p.add_argument("--demo", action="store_true",
-                   help="render the built-in demo: a Cycles scene with exact depth and HDR (rendered once "
-                        f"into {DEMO_DIR}), rack focus from the subject to the background and back")
+    p.add_argument("--demo-cg", "--demo", dest="demo", action="store_true",
+                   help="render the built-in CG demo: a Cycles scene with exact depth and HDR (rendered once "
+                        f"into {DEMO_DIR}), rack focus from the subject to the background and back (the real "
+                        "demo is `rvr refocus --demo`)")
     p.add_argument("--depth", type=Path, help="disparity sequence (EXR/PNG/NPY file, folder or pattern)")
     p.add_argument("--depth-scale", type=float, default=1.0, help="multiply depth values (to DESIGN units)")
     p.add_argument("--depth-offset", type=float, default=0.0, help="then add this")
@@ -171,7 +172,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         settings = demo_settings(args)
     else:
         if args.input is None or args.depth is None:
-            raise RvrError("rvr render needs INPUT and --depth DEPTH (or --demo); see rvr render --help")
+            raise RvrError("rvr render needs INPUT and --depth DEPTH (or --demo-cg); to refocus a clip in one "
+                           "command, use `rvr refocus CLIP -o OUT.mp4`; see rvr render --help")
         if not args.output:
             raise RvrError("no output: add -o OUT.mp4 (and/or -o FRAMES_DIR)")
         settings = RenderSettings(
