@@ -399,8 +399,8 @@ def cmd_estimate(args: argparse.Namespace) -> int:
         depth_is_distance=args.depth_is_distance, no_hdr=args.no_hdr, start=args.start, stop=args.stop,
         fps=args.fps, max_pixels=args.max_pixels, depth_method=args.depth_method, hfov_deg=args.hfov))
     print(job.plan.summary())
-    with on_interrupt("estimate", lambda: f"stopped after {job.done} of {job.total} frames; they are kept in "
-                                          f"{args.output}; run the same command again to continue"):
+    with on_interrupt("estimate", lambda: f"stopped after {job.done} of {job.total} frames; {job.kept()}; run the "
+                                          "same command again to continue"):
         job.run(progress=not args.quiet)
     print(f"wrote {args.output} ({job.text})")
     return 0

@@ -17,8 +17,8 @@ import numpy as np
 from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
 from .errors import InputError
 from .io.maps import open_map_sequence
-from .io.paths import replace_folder
-from .io.track import FocusTrack, constant_track, load_track, resolve_track
+from .io.paths import check_outputs, replace_folder
+from .io.track import FocusTrack, constant_track, load_track, resolve_track, warn_keys_beyond
 from .io.video import ClipInfo, iter_frames, probe_clip
 from .io.writer import ImageSequenceWriter, VideoWriter
 from .render.aperture import ApertureSpec
@@ -192,7 +192,13 @@ class RenderJob:
             raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
         if not (0 < s.scale <= 4):
             raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
+        check_outputs("render", [("output", out) for out in s.outputs],
+                      [("input", s.input), ("depth", s.depth), ("HDR", s.hdr), ("track", s.track)])
         self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)
+        from .estimate.cache import check_cache_source
+
+        for maps in {s.depth, s.hdr} - {None}:  # a cache of another clip is refused
+            check_cache_source(maps, s.input, self.clip, command="render")
         self.frame_list = None if s.frames is None else frame_list(s.frames, self.clip)
         if self.frame_list is not None:
             start, stop = int(self.frame_list[0]), int(self.frame_list[-1]) + 1
@@ -207,10 +213,14 @@ class RenderJob:
         if len(self.depth) > 1 and len(self.depth) < stop:
             raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "
                              f"{s.input} needs {stop}: supply one map per frame (or a single map)")
+        self.depth.warn_extra(self.clip.frame_count, s.input)
         self.hdr = open_map_sequence(s.hdr, kind="hdr") if s.hdr is not None else None
+        if self.hdr is not None:
+            self.hdr.warn_extra(self.clip.frame_count, s.input)
         self.track: FocusTrack | None = s.track_data
         if self.track is None and s.track is not None:
             self.track = load_track(s.track)
+            warn_keys_beyond(self.track, self.clip.frame_count if self.frame_list is None else self.total, s.input)
         self.renderer = FastRenderer(spec=s.spec, naive=s.naive, max_step=s.max_step, min_layers=s.min_layers)
         self.done = 0
         self.text = f"rendering {self.total} frames of {self.clip.path.name}"

@@ -14,10 +14,29 @@ A frame is trusted only if ``meta.json`` carries the same *key* (format, engine 
 model hash, source hash, resolution, depth settings), lists the frame with the file's byte
 size, and the EXR reads back with every channel at the clip's resolution and finite values.
 Anything else (another model, another source, a truncated or unreadable EXR, a frame written
-but not yet recorded when a run was killed) is recomputed, never trusted. When the key changes
-the old frames are deleted before the new ``meta.json`` is written. All writes are atomic
+but not yet recorded when a run was killed) is recomputed, never trusted. All writes are atomic
 (temp file + rename); ``meta.json`` is rewritten every few frames and at the end, so an
 interrupted run loses at most those frames.
+
+Another key never destroys a usable cache: when ``CACHE`` holds recorded frames under another
+key, the new frames are built beside it in ``PARENT/.NAME.rebuild-<key hash>/`` (a complete
+cache folder of its own; an interrupted rebuild of the same key resumes there), and
+:meth:`ClipCache.commit` swaps it into place only once the caller has finished every frame
+(``rvr estimate`` at the end of its range). Until then ``CACHE`` stays as it was, also after
+Ctrl-C or Esc. The swap renames the old folder aside, the new one into place, then deletes the
+old one; the rebuilt ``meta.json`` says ``"committing"`` first, so a crash between the two
+renames is finished by the next open. A folder without a readable ``meta.json`` holds nothing
+to keep and is rebuilt in place.
+
+One writer at a time: a :class:`ClipCache` holds the OS lock of its folder
+(:mod:`rvr_addon.io.lock`, ``PARENT/.NAME.lock``) from opening to :meth:`ClipCache.close`; a
+second writer is refused naming the process that holds it, and readers (``rvr render --depth
+CACHE``, :func:`rvr_addon.io.maps.open_map_sequence`) refuse a cache another process writes.
+
+Which clip a cache belongs to: ``meta.json``'s ``source`` records the path, the fingerprint and
+a content fingerprint (sizes and first and last MiB, no times or names of a video file), so a
+copied or moved clip is still recognised; :func:`check_cache_source` refuses a cache made from
+another clip (or from an earlier version of this one) naming both and the fix.
 
 The cache folder can be given to ``rvr render --depth CACHE --hdr CACHE`` directly (it reads
 channel D, then E.R/E.G/E.B) when it covers the clip from its first frame; it reads the
@@ -50,8 +69,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError, OutputError
+from ..io import lock as folder_lock
 from ..io.exr import read_exr, write_exr
-from ..io.paths import expand_sequence, temp_sibling
+from ..io.paths import expand_sequence, replace_folder, temp_sibling
 
 log = logging.getLogger(__name__)
 
@@ -62,19 +82,93 @@ CHANNELS = ("D", "E.R", "E.G", "E.B")
 STABILIZED_CHANNELS = ("S.D", "S.E.R", "S.E.G", "S.E.B", "S.C")
 MIB = 1 << 20
 KEY_FIELDS = ("format", "engine_version", "model_hash", "source_hash", "resolution", "depth")
+OPTIONAL_KEY_FIELDS = ("max_pixels",)
+"""Key fields compared like KEY_FIELDS but absent (= None, the default setting) in older caches:
+``max_pixels`` is the network trunk's size when it is not DEFAULT_MAX_PIXELS (``--max-pixels``)."""
+REBUILD_TAG = ".rebuild-"
 
 
-def _hash_file_ends(h, path: Path) -> None:
+def key_of(meta: dict) -> dict:
+    """The cache key recorded in a meta.json (KEY_FIELDS, and the optional ones it has)."""
+    key = {k: meta.get(k) for k in KEY_FIELDS}
+    key.update({k: meta[k] for k in OPTIONAL_KEY_FIELDS if meta.get(k) is not None})
+    return key
+
+
+def key_differences(meta: dict, key: dict) -> list[str]:
+    """Names of the key fields in which ``meta`` (a meta.json) differs from ``key``."""
+    key = json.loads(json.dumps(key))
+    return [k for k in KEY_FIELDS + OPTIONAL_KEY_FIELDS if meta.get(k) != key.get(k)]
+
+
+def rebuild_folder(target: str | Path, key: dict) -> Path:
+    """Where a cache under ``key`` is built beside ``target`` while it holds another key."""
+    target = Path(target)
+    digest = hashlib.sha256(json.dumps(json.loads(json.dumps(key)), sort_keys=True).encode()).hexdigest()[:12]
+    return target.parent / f".{target.name}{REBUILD_TAG}{digest}"
+
+
+def _read_meta(folder: Path) -> tuple[dict | None, str | None]:
+    """(meta.json of ``folder`` or None, why its frames cannot be trusted or None)."""
+    meta_path = folder / "meta.json"
+    if meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text())
+            if not isinstance(meta, dict):
+                raise ValueError("not a JSON object")
+            return meta, None
+        except (OSError, ValueError) as ex:
+            return None, f"meta.json is unreadable ({ex})"
+    if folder.is_dir() and any(_FRAME_RE.match(p.name) for p in folder.iterdir()):
+        return None, "frames without meta.json"
+    return None, None
+
+
+def _is_cache_entry(name: str) -> bool:
+    return name == "meta.json" or name.startswith(".") or _FRAME_RE.match(name) is not None
+
+
+def recover_swap(target: Path) -> None:
+    """Finish a swap (:meth:`ClipCache.commit`) a crash interrupted: a missing ``target`` gets the
+    rebuilt folder that was being put in place (else the old one back); leftovers are removed."""
+    import shutil
+
+    parent = target.parent
+    if not parent.is_dir():
+        return
+    asides = sorted(parent.glob(f".{target.name}.*.old"), key=lambda p: p.stat().st_mtime)
+    if not target.exists():
+        for d in parent.glob(f".{target.name}{REBUILD_TAG}*"):
+            meta, _ = _read_meta(d)
+            if meta is not None and meta.get("committing"):
+                d.replace(target)
+                log.warning("cache '%s': finished the swap to the rebuilt cache a crash interrupted", target)
+                break
+        else:
+            if asides:
+                asides.pop().replace(target)
+                log.warning("cache '%s': put the earlier cache back after an interrupted swap", target)
+    for aside in asides:
+        if aside.exists():
+            shutil.rmtree(aside, ignore_errors=True)
+
+
+def _hash_file_ends(hashes, path: Path) -> None:
     size = path.stat().st_size
     with path.open("rb") as f:
-        h.update(f.read(MIB))
+        chunks = [f.read(MIB)]
         if size > MIB:
             f.seek(max(size - MIB, MIB))
-            h.update(f.read(MIB))
+            chunks.append(f.read(MIB))
+    for h in hashes:
+        for chunk in chunks:
+            h.update(chunk)
 
 
 def source_fingerprint(path: str | Path, extensions: tuple[str, ...] = ()) -> dict:
-    """{"path", "hash", "method"} of a video file or an image sequence (see the module docstring).
+    """{"path", "hash", "content", "method"} of a video file or an image sequence (see the module
+    docstring). ``content`` leaves out the times (and a single file's name): it stays the same
+    when the clip is copied or moved, so :func:`check_cache_source` still recognises it.
 
     extensions: image suffixes for a folder input (default: those ``io.video`` reads).
     """
@@ -83,14 +177,58 @@ def source_fingerprint(path: str | Path, extensions: tuple[str, ...] = ()) -> di
     how, files = expand_sequence(str(path), extensions or IMAGE_EXTENSIONS)
     if not files:
         raise InputError(f"Input not found or empty: '{path}'")
-    h = hashlib.sha256()
+    h, content = hashlib.sha256(), hashlib.sha256()
     for f in files:
         st = f.stat()
         h.update(f"{f.name}|{st.st_size}|{st.st_mtime_ns}\n".encode())
-    for f in {files[0], files[-1]}:
-        _hash_file_ends(h, f)
-    return {"path": str(path), "hash": h.hexdigest()[:32],
-            "method": "sha256(name, size, mtime_ns of every file; first and last MiB of the first/last file)"}
+        content.update((f"{st.st_size}\n" if how == "file" else f"{f.name}|{st.st_size}\n").encode())
+    for f in sorted({files[0], files[-1]}):
+        _hash_file_ends((h, content), f)
+    return {"path": str(path), "hash": h.hexdigest()[:32], "content": content.hexdigest()[:32],
+            "method": "sha256(name, size, mtime_ns of every file; first and last MiB of the first/last file); "
+                      "content: the same without times and a single file's name"}
+
+
+def check_cache_source(folder: str | Path, clip: str | Path, clip_info=None, command: str = "render") -> None:
+    """Refuse a cache that was not made from ``clip`` (InputError naming both and the fix).
+
+    The same fingerprint, or the same content fingerprint (a copied or moved clip), passes. An
+    older cache without a content fingerprint passes with a warning when the file name, the
+    resolution and the frame count agree. ``folder`` without a cache meta.json is not checked.
+    clip_info: the clip's :class:`~rvr_addon.io.video.ClipInfo` if already probed.
+    """
+    folder, clip = Path(folder), Path(clip)
+    meta, _ = _read_meta(folder) if folder.is_dir() else (None, None)
+    if meta is None or not str(meta.get("format", "")).startswith("rvr-laaf-cache/"):
+        return
+    fp = source_fingerprint(clip)
+    recorded = meta.get("source") if isinstance(meta.get("source"), dict) else {}
+    if fp["hash"] == meta.get("source_hash") or (recorded.get("content") and recorded["content"] == fp["content"]):
+        return
+    if clip_info is None:
+        from ..io.video import probe_clip
+
+        clip_info = probe_clip(clip)
+    made = str(recorded.get("path") or "another clip")
+    res = meta.get("resolution") or ["?", "?"]
+    frames = meta.get("clip_frame_count", "?")
+    same_shape = list(res) == [clip_info.width, clip_info.height] and frames == clip_info.frame_count
+    fix = (f"run `rvr estimate {clip} -o {folder}` to estimate this clip into it (or give this clip's own cache)")
+    if not recorded.get("content") and same_shape and Path(made).name == clip.name:
+        log.warning("cache '%s' was made from '%s', which may be a copy of '%s' (same name, %sx%s, %s frames; this "
+                    "older cache records no content fingerprint); using it. If the clip was edited, %s", folder, made,
+                    clip, res[0], res[1], frames, fix)
+        return
+    try:
+        edited = Path(made).exists() and os.path.samefile(made, clip)
+    except OSError:
+        edited = False
+    if edited:
+        why = f"'{clip}' was changed or replaced after the cache '{folder}' was made from it"
+    else:
+        why = (f"the cache '{folder}' was made from '{made}' ({res[0]}x{res[1]}, {frames} frames), not from "
+               f"'{clip}' ({clip_info.width}x{clip_info.height}, {clip_info.frame_count} frames)")
+    raise InputError(f"rvr {command}: {why}, so its depth does not belong to this clip; {fix}")
 
 
 def frame_path(folder: Path, index: int) -> Path:
@@ -101,59 +239,124 @@ def frame_path(folder: Path, index: int) -> Path:
 class ClipCache:
     """Read/write access to one cache folder under one key (see the module docstring).
 
-    key: the fields of ``KEY_FIELDS`` (values JSON-serialisable); info: extra meta (fps,
-    model summary, source path) recorded but not compared.
+    key: the fields of ``KEY_FIELDS`` (and any of ``OPTIONAL_KEY_FIELDS``; values
+    JSON-serialisable); info: extra meta (fps, model summary, source path) recorded but not
+    compared. keep: info fields taken over from the folder's meta.json when it has the same
+    key (a re-run that reuses every frame keeps what the first run recorded). beside: build a
+    new key beside a usable cache of another key (module docstring) instead of clearing it;
+    :attr:`folder` is where the frames go, :attr:`target` the folder asked for. Holds the
+    folder's lock until :meth:`close` (InputError while another process writes it).
     """
 
-    def __init__(self, folder: str | Path, key: dict, info: dict | None = None, flush_every: int = 8) -> None:
+    def __init__(self, folder: str | Path, key: dict, info: dict | None = None, flush_every: int = 8,
+                 keep: tuple[str, ...] = (), beside: bool = True) -> None:
         missing = [k for k in KEY_FIELDS if k not in key]
         if missing:
             raise ValueError(f"cache key lacks {missing}")
-        self.folder = Path(folder)
+        self.target = self.folder = Path(folder)
         self.key = json.loads(json.dumps(key))  # normalised (tuples -> lists) for comparison
         self.info = dict(info or {})
         self.flush_every = flush_every
         self.frames: dict[str, int] = {}
         self.stale_reason: str | None = None
+        self.replaces: str | None = None
+        """Why the cache at :attr:`target` is being rebuilt beside it (None: written in place)."""
         self.stabilized: dict | None = None
         self._dirty = 0
-        self._open()
+        self._committing = False
+        if self.target.exists() and not self.target.is_dir():
+            raise OutputError(f"cache path '{self.target}' is a file; give a folder for the cache (-o DIR)")
+        self._lock = folder_lock.acquire(self.target, "the cache")
+        try:
+            self._open(keep, beside)
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def rebuilding(self) -> bool:
+        """True while the frames are built beside an existing cache of another key."""
+        return self.folder != self.target
 
     # -- opening --------------------------------------------------------------------------
-    def _open(self) -> None:
-        if self.folder.exists() and not self.folder.is_dir():
-            raise OutputError(f"cache path '{self.folder}' is a file; give a folder for the cache (-o DIR)")
+    def _open(self, keep: tuple[str, ...], beside: bool) -> None:
+        recover_swap(self.target)
         try:
-            self.folder.mkdir(parents=True, exist_ok=True)
+            self.target.mkdir(parents=True, exist_ok=True)
         except OSError as ex:
-            raise OutputError(f"cannot create the cache folder '{self.folder}': {ex}") from ex
-        meta_path = self.folder / "meta.json"
-        old = None
-        if meta_path.is_file():
-            try:
-                old = json.loads(meta_path.read_text())
-                if not isinstance(old, dict):
-                    raise ValueError("not a JSON object")
-            except (OSError, ValueError) as ex:
-                self.stale_reason = f"meta.json is unreadable ({ex})"
-                old = None
-        elif any(_FRAME_RE.match(p.name) for p in self.folder.iterdir()):
-            self.stale_reason = "frames without meta.json"
+            raise OutputError(f"cannot create the cache folder '{self.target}': {ex}") from ex
+        old, self.stale_reason = _read_meta(self.target)
         if old is not None:
-            diff = [k for k in KEY_FIELDS if old.get(k) != self.key[k]]
+            diff = key_differences(old, self.key)
             if diff:
-                self.stale_reason = "written with another " + ", ".join(k.replace("_", " ") for k in diff)
-            else:
-                frames = old.get("frames") or {}
-                self.frames = {str(k): int(v) for k, v in frames.items()} if isinstance(frames, dict) else {}
-                self.stabilized = _stabilized_record(old.get("stabilized"))
-                self._adopt_pending()
+                why = "written with another " + ", ".join(k.replace("_", " ") for k in diff)
+                if beside and isinstance(old.get("frames"), dict) and old["frames"]:
+                    self.replaces = why
+                    self.folder = rebuild_folder(self.target, self.key)
+                    self._prune_rebuilds()
+                    try:
+                        self.folder.mkdir(exist_ok=True)
+                    except OSError as ex:
+                        raise OutputError(f"cannot create '{self.folder}' beside the cache '{self.target}': "
+                                          f"{ex}") from ex
+                    log.info("cache '%s' holds %d frames %s; building the new ones beside it in '%s' (the cache stays "
+                             "as it is until they are complete)", self.target, len(old["frames"]), why, self.folder)
+                    old, self.stale_reason = _read_meta(self.folder)
+                    if old is not None and key_differences(old, self.key):
+                        self.stale_reason, old = "written with another key", None
+                else:
+                    self.stale_reason, old = why, None
+        if old is not None:
+            frames = old.get("frames") or {}
+            self.frames = {str(k): int(v) for k, v in frames.items()} if isinstance(frames, dict) else {}
+            self.stabilized = _stabilized_record(old.get("stabilized"))
+            self._adopt_pending()
+            for k in keep:
+                if k in old and k not in self.info:
+                    self.info[k] = old[k]
         if self.stale_reason:
             removed = self._remove_frames()
             log.warning("cache '%s' is stale (%s): %d old frames removed, recomputing", self.folder,
                         self.stale_reason, removed)
             self.frames = {}
         self.flush()
+
+    def _prune_rebuilds(self) -> None:
+        """Remove partial rebuilds of other keys beside the target (only the newest key is kept)."""
+        import shutil
+
+        for d in self.target.parent.glob(f".{self.target.name}{REBUILD_TAG}*"):
+            if d != self.folder and d.is_dir():
+                shutil.rmtree(d, ignore_errors=True)
+                folder_lock.lock_path(d).unlink(missing_ok=True)
+
+    def commit(self) -> None:
+        """Put a cache rebuilt beside the old one in its place (call once every frame the caller
+        wants is written); nothing to do when it was written in place. Files of the old folder
+        that are not the cache's own are carried over, not lost."""
+        if not self.rebuilding:
+            return
+        self._committing = True
+        self.flush()
+        try:
+            for p in self.target.iterdir():
+                if not _is_cache_entry(p.name) and not (self.folder / p.name).exists():
+                    p.replace(self.folder / p.name)
+            replace_folder(self.folder, self.target)
+        except OSError as ex:
+            raise OutputError(f"cannot put the rebuilt cache '{self.folder}' in place of '{self.target}': {ex}; the "
+                              "earlier cache is still there; run the same command again") from ex
+        rebuilt, self.folder = self.folder, self.target
+        folder_lock.lock_path(rebuilt).unlink(missing_ok=True)
+        self._committing = False
+        self.flush()
+        log.info("cache '%s': replaced the frames %s with the %d new ones", self.target, self.replaces,
+                 len(self.frames))
+        self.replaces = None
+
+    def close(self) -> None:
+        """Give the folder's lock back (the object must not write afterwards)."""
+        self._lock = None
 
     def _remove_frames(self) -> int:
         n = 0
@@ -211,6 +414,8 @@ class ClipCache:
                 "frames": {str(k): self.frames[str(k)] for k in numbers}}
         if self.stabilized is not None:
             meta["stabilized"] = self.stabilized
+        if self._committing:
+            meta["committing"] = True
         path = self.folder / "meta.json"
         tmp = temp_sibling(path, ".json")
         try:
@@ -246,9 +451,11 @@ class ClipCache:
                              f"re-run `rvr estimate ... -o {folder}` with this version")
         if not meta.get("frames"):
             raise InputError(f"the cache '{folder}' holds no frame; run `rvr estimate ... -o {folder}` first")
-        generated = {"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames", "stabilized"}
-        info = {k: v for k, v in meta.items() if k not in KEY_FIELDS and k not in generated}
-        return cls(folder, {k: meta[k] for k in KEY_FIELDS}, info)
+        generated = {"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames", "stabilized",
+                     "committing"}
+        key = key_of(meta)
+        info = {k: v for k, v in meta.items() if k not in key and k not in generated}
+        return cls(folder, key, info)
 
     def _adopt_pending(self) -> None:
         """A file renamed into place by an interrupted :meth:`write_stabilized` (its size is

@@ -273,22 +273,10 @@ class EstimateSettings:
     """``auto`` | ``parallax`` | ``people`` | ``network`` | ``external`` (:mod:`rvr_addon.depth.system`)."""
     hfov_deg: float | None = None
     """The camera's horizontal field of view (deg) for the geometric cues; None: a phone's (66)."""
-
-
-def _earlier_depth_cues(folder: Path, key: dict) -> dict:
-    """``{"depth_cues": ...}`` of the cache's meta.json when it was written under ``key`` (a re-run
-    that reuses every frame does not run the cues again and must not drop their record), else {}."""
-    from .cache import KEY_FIELDS
-
-    try:
-        old = json.loads((folder / "meta.json").read_text())
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(old, dict) or "depth_cues" not in old:
-        return {}
-    if any(old.get(k) != json.loads(json.dumps(key.get(k))) for k in KEY_FIELDS):
-        return {}
-    return {"depth_cues": old["depth_cues"]}
+    defer_commit: bool = False
+    """When the output holds a cache of other settings, the new one is built beside it
+    (:class:`~.cache.ClipCache`) and put in place once the range is done; True leaves that to
+    the caller (``job.cache.commit()``: Blender's Analyze does it after stabilizing)."""
 
 
 class EstimateJob:
@@ -301,7 +289,11 @@ class EstimateJob:
         from .cache import CACHE_FORMAT, ClipCache, source_fingerprint
         from ..depth.system import record as depth_record
 
+        from ..io.paths import check_outputs
+
         s = self.settings = settings
+        check_outputs("estimate", [("cache folder", s.output)],
+                      [("input", s.input), ("depth maps", s.depth), ("weights", s.weights)])
         if s.depth_points and (s.depth_scale != 1.0 or s.depth_offset != 0.0):
             raise InputError("give either --depth-points or --depth-scale/--depth-offset, not both")
         self.clip = probe_clip(s.input, fps=s.fps)
@@ -315,6 +307,7 @@ class EstimateJob:
             self.depth = DepthSource(Path(s.depth), s.depth_scale, s.depth_offset, s.depth_is_distance,
                                      list(s.depth_points))
             self.depth.maps.check_length(stop)
+            self.depth.maps.warn_extra(self.clip.frame_count, s.input)
             self.depth.fit(self.start, size)
         source = source_fingerprint(s.input)
         self.plan = self._plan(size, source["hash"])
@@ -333,8 +326,8 @@ class EstimateJob:
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
                 "depth_plan": depth_record(self.plan, self.start, s.hfov_deg)}
-        info.update(_earlier_depth_cues(Path(s.output), key))  # kept when every frame is reused
-        self.cache = ClipCache(s.output, key, info)
+        # depth_cues: kept when every frame is reused (the cues do not run again)
+        self.cache = ClipCache(s.output, key, info, keep=("depth_cues",))
         self.stream = None
         if len(self.plan.cues) > 1:
             from ..depth.system import DepthStream
@@ -452,6 +445,8 @@ class EstimateJob:
         return d, e
 
     def _close(self) -> None:
+        if self._finished:
+            return
         if self._frames is not None:
             self._frames.close()
         used = ""
@@ -464,13 +459,25 @@ class EstimateJob:
                 used = f"; depth: {describe_usage(self.plan, usage)}"
             self.stream.close()
         self.cache.flush()
+        if self.done >= self.total and not self.settings.defer_commit:
+            self.cache.commit()  # a cache of other settings is replaced only now, when complete
+        self.cache.close()
         self._finished = True
         self.text = f"estimated {self.computed} frames, reused {self.reused} from the cache{used}"
 
     def cancel(self) -> None:
-        """Stop; frames written so far stay valid in the cache (meta.json is flushed)."""
+        """Stop; frames written so far stay valid in the cache (meta.json is flushed). A cache
+        of other settings at the output stays as it was (the new frames wait beside it)."""
         self._close()
-        self.text = f"cancelled after {self.done} of {self.total} frames"
+        self.text = f"cancelled after {self.done} of {self.total} frames; " + self.kept()
+
+    def kept(self) -> str:
+        """Where the frames written so far are, for messages after a stop."""
+        c = self.cache
+        if c.rebuilding:
+            return (f"the cache '{c.target}' is unchanged (it was {c.replaces}); the new frames wait beside it in "
+                    f"'{c.folder}' until the range is complete")
+        return f"they are kept in '{c.folder}'"
 
     def run(self, progress: bool = True) -> None:
         """Run to the end with a tqdm bar; Ctrl-C flushes the cache, then re-raises."""

@@ -53,8 +53,9 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
             f"Cannot read EXR file '{path}': {ex}. The file is corrupt or not an OpenEXR image; "
             "re-export it or delete it so it is recomputed."
         ) from ex
-    if not out:
-        raise InputError(f"EXR file '{path}' has no channels; re-export it with at least one channel.")
+    if not out:  # OpenEXR reads a truncated file's header, then no pixel data of any channel
+        raise InputError(f"EXR file '{path}' is truncated or damaged: no channel's pixel data could be read "
+                         f"({path.stat().st_size} bytes). Re-export or re-copy it, or delete it so it is recomputed.")
     return out
 
 

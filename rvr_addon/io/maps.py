@@ -1,7 +1,11 @@
 """Per-frame 2-D maps supplied by the user: disparity D or HDR exponent E.
 
 Sources: one file (used for every frame), a folder, a glob or a printf pattern of EXR, PNG,
-TIFF, NPY or NPZ files. Values are `raw * scale + offset`, with 8/16-bit images first
+TIFF, NPY or NPZ files, or one NPY/NPZ stack of N maps, shape (N, H, W) (HDR: also
+(N, H, W, 3)), read as frames 0..N-1 (a 3-D array whose last axis is 1, 3 or 4 is one map
+with channels). A per-clip cache folder (``rvr estimate``) is read as recorded in its
+meta.json: a frame whose file is not the one recorded is refused, and so is a cache that
+another process is writing (:mod:`.lock`). Values are `raw * scale + offset`, with 8/16-bit images first
 normalised to [0, 1]. Disparity values are in px of blur radius at aperture 1 at the clip's
 native width, whatever the map's own resolution: resampling a map to the frame size does NOT
 rescale its values (scale them with `scale=` if your maps were made at another width).
@@ -86,9 +90,10 @@ def _image_map(path: Path, kind: str) -> np.ndarray:
     return image
 
 
-def _numpy_map(path: Path, kind: str) -> np.ndarray:
+def _numpy_array(path: Path, kind: str, mmap: bool = False) -> np.ndarray:
+    """The array of an NPY file (memory-mapped when ``mmap``) or the map array of an NPZ file."""
     try:
-        loaded = np.load(path, allow_pickle=False)
+        loaded = np.load(path, allow_pickle=False, mmap_mode="r" if mmap and path.suffix.lower() == ".npy" else None)
     except Exception as ex:
         raise InputError(f"Cannot read map '{path}': {ex}. Save it with numpy.save / numpy.savez.") from ex
     if isinstance(loaded, np.lib.npyio.NpzFile):
@@ -96,10 +101,22 @@ def _numpy_map(path: Path, kind: str) -> np.ndarray:
             if not loaded.files:
                 raise InputError(f"NPZ map '{path}' holds no arrays; save the map with numpy.savez(path, disparity=D).")
             key = "disparity" if kind == "disparity" else "E"
-            array = loaded[key] if key in loaded.files else loaded[loaded.files[0]]
-    else:
-        array = loaded
-    array = np.asarray(array)
+            return loaded[key] if key in loaded.files else loaded[loaded.files[0]]
+    return loaded
+
+
+def stack_length(shape: tuple[int, ...], kind: str) -> int | None:
+    """N for an array of N maps ((N, H, W), or (N, H, W, C)), None for one map ((H, W), or
+    (H, W, C) with C in 1, 3, 4: channels of one picture)."""
+    if len(shape) == 4:
+        return int(shape[0])
+    if len(shape) == 3 and shape[2] not in (1, 3, 4):
+        return int(shape[0])
+    return None
+
+
+def _numpy_map(path: Path, kind: str, array: np.ndarray | None = None) -> np.ndarray:
+    array = np.asarray(_numpy_array(path, kind) if array is None else array)
     if array.ndim == 3 and array.shape[2] == 1:
         array = array[:, :, 0]
     if array.ndim == 3 and kind == "disparity":
@@ -107,9 +124,11 @@ def _numpy_map(path: Path, kind: str) -> np.ndarray:
     return array.astype(np.float32)
 
 
-def _read_raw(path: Path, kind: str, prefix: str = "") -> np.ndarray:
+def _read_raw(path: Path, kind: str, prefix: str = "", layer: np.ndarray | None = None) -> np.ndarray:
     suffix = path.suffix.lower()
-    if suffix == ".exr":
+    if layer is not None:  # one map of an (N, H, W) stack
+        array = _numpy_map(path, kind, layer)
+    elif suffix == ".exr":
         array = _exr_map(path, kind, prefix)
     elif suffix in (".npy", ".npz"):
         array = _numpy_map(path, kind)
@@ -176,6 +195,8 @@ class MapSequence:
         self.offset = float(offset)
         self.static = static
         self.prefix = ""  # "S." reads a cache's stabilized channels (see open_map_sequence)
+        self.stack: np.ndarray | None = None  # an (N, H, W) NPY/NPZ stack (memory-mapped NPY)
+        self.cache: dict | None = None  # a cache folder: {"folder", "fix", "files": {path: (size, ino, mtime)}}
         self._warned_size = False
         self._warned_nonfinite = False
         self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
@@ -198,6 +219,13 @@ class MapSequence:
                 f"{self.label} has {len(self)} maps but the clip has {n_frames} frames; supply one map per frame."
             )
 
+    def warn_extra(self, clip_frames: int, clip: str | Path) -> None:
+        """Log a warning naming both counts when there are more maps than ``clip`` has frames
+        (maps of another, longer clip, or a folder holding more than this clip's maps)."""
+        if not self.static and len(self) > 1 and len(self) > clip_frames:
+            log.warning("%s has %d maps but the clip '%s' has %d frames; maps %d..%d are not used. Check that the maps "
+                        "belong to this clip.", self.label, len(self), clip, clip_frames, clip_frames, len(self) - 1)
+
     def path_for(self, index: int) -> Path:
         """File that holds frame `index` (0-based); InputError when out of range."""
         if self.static:
@@ -209,8 +237,9 @@ class MapSequence:
             )
         path = self.paths[index]
         if not path.is_file():
-            raise InputError(f"{self.label} lacks frame {index} ('{path.name}'); analyse (rvr estimate) the frames "
-                             "you render")
+            fix = self.cache["fix"] if self.cache else "rvr estimate CLIP -o CACHE"
+            raise InputError(f"{self.label} lacks frame {index} ('{path.name}'); run `{fix}` over the frames you "
+                             "render")
         return path
 
     def get(self, index: int, size: tuple[int, int] | None = None) -> np.ndarray:
@@ -222,16 +251,43 @@ class MapSequence:
         path = self.path_for(index)
         if self.static and self._static_cache is not None and self._static_cache[0] == size:
             return self._static_cache[1].copy()
-        array = self._load(path, size)
+        array = self._load(path, size, index)
         if self.static:
             self._static_cache = (size, array)
             return array.copy()
         return array
 
-    def _load(self, path: Path, size: tuple[int, int] | None) -> np.ndarray:
+    def _read_cache_frame(self, path: Path) -> np.ndarray:
+        """A cache frame, checked against the meta.json read when the sequence was opened."""
+        folder, fix = self.cache["folder"], self.cache["fix"]
+        expected = self.cache["files"].get(path)
+        if expected is None:
+            raise InputError(f"'{path}' is not recorded in '{folder / 'meta.json'}' (its estimate was not finished); "
+                             f"run `{fix}` again to compute it")
+        try:
+            st = path.stat()
+        except OSError as ex:
+            raise InputError(f"cache frame '{path}' cannot be read ({ex}); run `{fix}` again to recompute it") from ex
+        if st.st_size not in expected[0]:
+            raise InputError(f"cache frame '{path}' is truncated or incomplete ({st.st_size} bytes; meta.json records "
+                             f"{expected[0][0]}); run `{fix}` again to recompute it")
+        if expected[1] is not None and (st.st_ino, st.st_mtime_ns) != expected[1]:
+            raise InputError(f"cache frame '{path}' was rewritten while it was being read (another process writes "
+                             f"the cache '{folder}'); run this command again once it has finished")
+        try:
+            return _read_raw(path, self.kind, self.prefix)
+        except InputError as ex:
+            raise InputError(f"{ex} It belongs to the cache '{folder}': run `{fix}` again to recompute it.") from ex
+
+    def _load(self, path: Path, size: tuple[int, int] | None, index: int = 0) -> np.ndarray:
         import cv2
 
-        array = _read_raw(path, self.kind, self.prefix)
+        if self.cache is not None:
+            array = self._read_cache_frame(path)
+        elif self.stack is not None:
+            array = _read_raw(path, self.kind, layer=np.asarray(self.stack[index]))
+        else:
+            array = _read_raw(path, self.kind, self.prefix)
         finite = np.isfinite(array)
         if not finite.all():
             if not finite.reshape(array.shape[0], array.shape[1], -1).any(axis=(0, 1)).all():
@@ -284,6 +340,17 @@ def open_map_sequence(path: str | Path, kind: str = "disparity", scale: float = 
         raise InputError(
             f"'{unsupported[0]}' is not a supported map format; use one of {', '.join(MAP_EXTENSIONS)}."
         )
+    if how == "file" and files[0].suffix.lower() in (".npy", ".npz"):
+        stack = _numpy_array(files[0], kind, mmap=True)
+        n = stack_length(stack.shape, kind)
+        if n is not None:
+            if n == 0:
+                raise InputError(f"the {name} stack '{text}' has shape {stack.shape}: no maps; save one map per frame, "
+                                 "shape (N, H, W)")
+            seq = MapSequence(text, [files[0]] * n, kind, scale, offset, static=False)
+            seq.stack = stack
+            log.info("%s: an array of %d maps of %dx%d (one per frame)", text, n, stack.shape[2], stack.shape[1])
+            return seq
     seq = MapSequence(text, files, kind, scale, offset, static=(how == "file"))
     if how == "directory":
         _use_cache_channels(seq, Path(text))
@@ -305,6 +372,26 @@ def _use_cache_channels(seq: MapSequence, folder: Path) -> None:
     if not isinstance(meta, dict) or not str(meta.get("format", "")).startswith("rvr-laaf-cache/"):
         return
     from ..estimate.cache import _FRAME_RE, FRAME_NAME, stabilized_complete
+    from .lock import writer_active
+
+    source = (meta.get("source") or {}).get("path") if isinstance(meta.get("source"), dict) else None
+    fix = f"rvr estimate {source or 'CLIP'} -o {folder}"
+    other = writer_active(folder)
+    if other is not None:
+        raise InputError(f"the cache '{folder}' is being written by another process ({other}); wait until it has "
+                         "finished, then run this command again")
+    frames = meta.get("frames") if isinstance(meta.get("frames"), dict) else {}
+    pending = ((meta.get("stabilized") or {}).get("pending") or {}) if isinstance(meta.get("stabilized"), dict) else {}
+    files: dict[Path, tuple] = {}
+    for number, size in frames.items():
+        path = folder / FRAME_NAME.format(int(number))
+        sizes = tuple(int(v) for v in (size, pending.get(str(number))) if v is not None)
+        try:
+            st = path.stat()
+            files[path] = (sizes, (st.st_ino, st.st_mtime_ns) if st.st_size in sizes else None)
+        except OSError:
+            pass  # missing: path_for says so
+    seq.cache = {"folder": folder, "fix": fix, "files": files}
 
     # a cache may hold a part of its clip (frames 40..80 of a trimmed strip): index i is the
     # file of clip frame i (frame_NNNNN.exr = i + 1), never the i-th file present

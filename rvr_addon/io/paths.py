@@ -5,10 +5,13 @@ Shared by video input (image sequences) and per-frame maps. Pure filesystem logi
 from __future__ import annotations
 
 import glob
+import os
 import re
 import secrets
 from pathlib import Path
 from typing import Iterable
+
+from ..errors import InputError
 
 _DIGITS = re.compile(r"(\d+)")
 _PRINTF = re.compile(r"%(0?\d*)d")
@@ -116,3 +119,60 @@ def replace_folder(new: Path, target: Path) -> None:
         shutil.rmtree(aside, ignore_errors=True)
     else:
         new.replace(target)
+
+
+# ----------------------------------------------------------------------------- outputs vs inputs
+
+
+def _real(path: str | Path) -> Path:
+    """Absolute path with symlinks and ``..`` resolved (also for paths that do not exist yet),
+    case-folded where the filesystem ignores case; a file pattern stands for its folder."""
+    text = str(path)
+    p = Path(text)
+    if not p.exists() and (is_printf_pattern(text) or is_glob_pattern(p.name)):
+        p = p.parent
+    return Path(os.path.normcase(os.path.realpath(p)))
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)  # a hard link (or another name) of the same file
+    except OSError:
+        return False
+
+
+def _inside(child: Path, folder: Path) -> bool:
+    return child != folder and child.is_relative_to(folder)
+
+
+def check_outputs(command: str, outputs: Iterable[tuple[str, str | Path | None]],
+                  inputs: Iterable[tuple[str, str | Path | None]]) -> None:
+    """Refuse an output of ``rvr COMMAND`` that would overwrite or swallow one of its inputs.
+
+    outputs / inputs: ``(what, path)`` pairs ("video", "cache folder", ...); None paths are
+    skipped; a frame pattern (``frames/f_%04d.png``, ``depth/*.exr``) stands for its folder.
+    An output is refused (InputError naming both paths, before anything is written) when it
+    resolves to an input (through ``..``, symlinks or case), is a hard link of one, contains
+    one (an output folder is replaced as a whole), or lies inside an input folder (a frames
+    folder, maps folder or cache would read it back, or lose it when it is rebuilt).
+    """
+    ins = [(what, Path(p), _real(p)) for what, p in inputs if p is not None and str(p) != ""]
+    for out_what, out in outputs:
+        if out is None or str(out) == "":
+            continue
+        out = Path(out)
+        real_out = _real(out)
+        for in_what, inp, real_in in ins:
+            if real_out == real_in or _same_file(out, inp):
+                raise InputError(
+                    f"rvr {command}: the {out_what} '{out}' is the same file or folder as the {in_what} '{inp}'; "
+                    f"writing it would destroy the input. Choose another {out_what} path (e.g. "
+                    f"'{out.with_name(out.stem + '_out' + out.suffix)}')")
+            if _inside(real_in, real_out):
+                raise InputError(
+                    f"rvr {command}: the {out_what} '{out}' contains the {in_what} '{inp}'; an output folder is "
+                    f"replaced as a whole, so the input would be lost. Choose a {out_what} outside '{inp}'s folder")
+            if _inside(real_out, real_in):
+                raise InputError(
+                    f"rvr {command}: the {out_what} '{out}' lies inside the {in_what} '{inp}'; it would be read "
+                    f"back as input or lost when that folder is rebuilt. Choose a {out_what} outside '{inp}'")

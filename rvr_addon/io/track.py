@@ -183,6 +183,19 @@ def load_track(path: str | Path) -> FocusTrack:
     return FocusTrack(frames, focus, aperture, source=f"Focus track '{path}'")
 
 
+def warn_keys_beyond(track: FocusTrack, n_frames: int, clip: str | Path) -> bool:
+    """Log a warning naming the track file and the clip length when keys lie at or after frame
+    ``n_frames`` (the clip's frame count; 0-based keys) or before 0: such keys never show (a
+    track made for another clip, or counted from 1). Returns True when it warned."""
+    beyond = track.frames[(track.frames >= n_frames) | (track.frames < 0)]
+    if beyond.size == 0:
+        return False
+    log.warning("%s: %d key(s) lie outside the clip '%s' of %d frames (frames 0..%d): %s; they are not shown. Is the "
+                "track made for another clip, or counted from 1?", track.source, beyond.size, clip, n_frames,
+                n_frames - 1, ", ".join(str(int(f)) for f in beyond[:5]) + (", ..." if beyond.size > 5 else ""))
+    return True
+
+
 def resolve_track(track: FocusTrack, n_frames: int, start: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame (focus, aperture), each (n_frames,) float32, for frames start..start+n_frames-1.
 

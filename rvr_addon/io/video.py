@@ -212,14 +212,33 @@ def _scan_with_ffmpeg(path: Path) -> tuple[int, bool, str]:
             f"video; re-export it (H.264 MP4 is safest).\nffmpeg said:\n{_tail(stderr)}"
         )
     has_audio = re.search(r"Stream #\d+:\d+.*: Audio:", description) is not None
-    count = 0
+    count = packets = 0
     for line in run.stdout.decode("ascii", "replace").splitlines():
         if not line or line.startswith("#"):
             continue
+        packets += 1
         flags = _PACKET_FLAGS.search(line)
         if flags is None or not int(flags.group(1), 16) & _DISCARD_FLAG:
             count += 1
+    _warn_if_truncated(path, count, packets, "partial file" in stderr)
     return count, has_audio, description
+
+
+def _warn_if_truncated(path: Path, count: int, packets: int, partial: bool) -> None:
+    """Warn, naming the file and both counts, when the container declares more frames than its
+    data holds (a copy or download cut short; a ``+faststart`` MP4 keeps its full index)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    try:
+        declared = float(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0.0
+    finally:
+        cap.release()
+    declared = int(declared) if np.isfinite(declared) and declared > 0 else 0
+    if partial or declared > packets:
+        said = f"its container declares {declared} frames but" if declared > packets else "ffmpeg reports a partial file;"
+        log.warning("'%s' is truncated or damaged: %s only %d can be read; the clip is used as %d frames. Re-copy or "
+                    "re-export the file to get the whole clip.", path, said, count, count)
 
 
 def _container_fps(path: Path) -> float:

@@ -64,10 +64,12 @@ class StabilizeJob:
     """Stabilize a cache in place (see the module docstring)."""
 
     def __init__(self, settings: StabilizeSettings) -> None:
-        from ..estimate.cache import ClipCache, source_fingerprint
+        from ..estimate.cache import ClipCache, check_cache_source
+        from ..io.paths import check_outputs
         from ..io.video import probe_clip
 
         self.settings = s = settings
+        check_outputs("stabilize", [("cache", s.cache)], [("video", s.input)])
         self.cache = ClipCache.open_existing(s.cache)
         recorded = self.cache.info.get("source") or {}
         source = s.input if s.input is not None else recorded.get("path")
@@ -84,10 +86,7 @@ class StabilizeJob:
         if indices[-1] >= self.clip.frame_count:
             raise InputError(f"the cache '{s.cache}' holds frames up to {indices[-1]} but '{self.source}' has only "
                              f"{self.clip.frame_count} frames; pass --input with the clip the cache was estimated from")
-        if source_fingerprint(self.source)["hash"] != self.cache.key["source_hash"]:
-            log.warning("'%s' is not the file the cache '%s' was estimated from (its fingerprint differs); the flow "
-                        "is computed from it anyway. Pass --input with the original clip if it was edited.",
-                        self.source, s.cache)
+        check_cache_source(s.cache, self.source, self.clip, command="stabilize")  # another clip's flow: refused
         if (self.clip.width, self.clip.height) != self.resolution:
             log.info("'%s' is %dx%d, the cache %dx%d: flows are computed on the frames and resampled to the cache",
                      self.source, self.clip.width, self.clip.height, *self.resolution)
@@ -113,6 +112,7 @@ class StabilizeJob:
         self._filter: TemporalFilter | None = None
         self._finished = not self.plan
         if self._finished:
+            self.cache.close()
             self.text = f"all {len(indices)} frames already stabilized with these settings (--force recomputes)"
 
     @property
@@ -166,6 +166,7 @@ class StabilizeJob:
         if self._stream is not None:
             self._stream.close()
         self.cache.flush()
+        self.cache.close()
         self._finished = True
         cuts = len(self._filter.cuts) if self._filter is not None else 0
         self.text = (f"stabilized {self.written} frames, kept {self.reused} already stabilized"
