@@ -7,7 +7,11 @@ the preferences: cache location, weights, threads) into an engine
 progress. Both skip what the cache already holds for the same model, source and settings, so
 re-running Analyze on an analysed strip only checks the cache. Cancelling keeps every frame
 finished so far (the cache's meta.json is flushed) and changes nothing in the scene; only a
-complete run records the cache on the strip (``strip.rvr.cache_path``).
+complete run records the cache on the strip (``strip.rvr.cache_path``). When the strip's
+settings changed since its cache was made, the new cache is built (estimated and stabilized)
+beside the old one and swapped in only at the end, so Esc leaves the strip on its intact old
+cache; the job holds the cache's lock from start to end (another Blender or ``rvr`` process
+writing the same cache is refused, naming it).
 
 Where D comes from: the strip's Depth setting (``strip.rvr.depth_method``: Auto fuses parallax,
 people and the network, see ``rvr_addon.depth.system``; Parallax, People, Network) with its
@@ -135,13 +139,15 @@ class AnalyzeJob:
 
     def __init__(self, plan: AnalyzePlan) -> None:
         from ..rvr_addon.estimate.infer import EstimateJob, EstimateSettings
+        from ..rvr_addon.io import lock as folder_lock
 
         self.plan = plan
         span = plan.source.span
+        self._lock = folder_lock.acquire(plan.cache, "the cache")  # held across estimate, stabilize and the swap
         self.estimate = EstimateJob(EstimateSettings(
             input=plan.source.path, output=plan.cache, weights=plan.weights, depth=plan.depth,
             no_hdr=plan.weights is None, start=span.clip_start, stop=span.clip_stop, fps=plan.source.fps,
-            depth_method=plan.depth_method, hfov_deg=plan.hfov_deg))
+            depth_method=plan.depth_method, hfov_deg=plan.hfov_deg, defer_commit=True))
         self.stabilize = None
         self.phase = "estimate"
         self.text = self.estimate.text
@@ -161,21 +167,28 @@ class AnalyzeJob:
                 self.text = f"estimating frame {self.estimate.done}/{self.estimate.total}"
                 return True
             if not self.plan.stabilize:
-                self.phase = "done"
+                self._commit()
                 return False
             from ..rvr_addon.temporal.job import StabilizeJob, StabilizeSettings
 
-            self.phase = "stabilize"
-            self.stabilize = StabilizeJob(StabilizeSettings(cache=self.plan.cache, input=self.plan.source.path))
+            self.phase = "stabilize"  # where the estimate wrote: the cache, or the new one beside it
+            self.stabilize = StabilizeJob(StabilizeSettings(cache=self.estimate.cache.folder,
+                                                            input=self.plan.source.path))
             self.text = self.stabilize.text
             return True
         if self.phase == "stabilize":
             if self.stabilize.step():
                 self.text = f"stabilizing {self.stabilize.done}/{self.stabilize.total}"
                 return True
-            self.phase = "done"
+            self._commit()
         self.text = self.summary()
         return False
+
+    def _commit(self) -> None:
+        """Put a cache rebuilt beside the old one in its place; give the lock back."""
+        self.estimate.cache.commit()
+        self.phase = "done"
+        self._lock = None
 
     def summary(self) -> str:
         e = self.estimate
@@ -191,7 +204,13 @@ class AnalyzeJob:
         job = self.stabilize if self.phase == "stabilize" else self.estimate
         job.cancel()
         self.cancelled = True
-        self.text = f"cancelled: {job.text}; the cache keeps the finished frames"
+        cache = self.estimate.cache
+        if cache.rebuilding:
+            self.text = (f"cancelled: the cache '{cache.target}' is unchanged (the strip still uses it); the frames "
+                         f"made with the new settings wait beside it in '{cache.folder}' for the next Analyze")
+        else:
+            self.text = f"cancelled: {job.text}; the cache keeps the finished frames"
+        self._lock = None
 
 
 def start_analyze(plan: AnalyzePlan, preferences=None) -> AnalyzeJob:

@@ -119,6 +119,13 @@ def plan_clips(clips: list[Path], settings: BatchSettings, fingerprint: str) -> 
         cache = settings.caches / f"{name}-{path_id(clip)}"
         work = settings.output / BATCH_DIR / "work" / f"{name}-{fingerprint[:8]}"
         plans.append(ClipPlan(i, Path(clip), name, cache, work))
+    from ..io.paths import check_outputs
+
+    inputs = [("clip", p.source) for p in plans]
+    if settings.depth_root is not None:
+        inputs += [("depth maps", settings.depth_root / p.name) for p in plans]
+    check_outputs("batch", [(f"output of clip '{p.name}'", out) for p in plans
+                            for out in (*p.output_paths(settings), p.cache, p.work)], inputs)
     return plans
 
 

@@ -86,6 +86,9 @@ OPTIONAL_KEY_FIELDS = ("max_pixels",)
 """Key fields compared like KEY_FIELDS but absent (= None, the default setting) in older caches:
 ``max_pixels`` is the network trunk's size when it is not DEFAULT_MAX_PIXELS (``--max-pixels``)."""
 REBUILD_TAG = ".rebuild-"
+GENERATED_FIELDS = frozenset({"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames",
+                              "stabilized", "committing"})
+"""meta.json fields :meth:`ClipCache.flush` derives (neither key nor info)."""
 
 
 def key_of(meta: dict) -> dict:
@@ -336,6 +339,11 @@ class ClipCache:
         that are not the cache's own are carried over, not lost."""
         if not self.rebuilding:
             return
+        meta, _ = _read_meta(self.folder)  # another writer in this process (Analyze's stabilize) may have added
+        if meta is not None and not key_differences(meta, self.key) and isinstance(meta.get("frames"), dict):
+            self.frames = {str(k): int(v) for k, v in meta["frames"].items()}
+            self.stabilized = _stabilized_record(meta.get("stabilized"))
+            self.info.update({k: v for k, v in meta.items() if k not in self.key and k not in GENERATED_FIELDS})
         self._committing = True
         self.flush()
         try:
@@ -451,10 +459,8 @@ class ClipCache:
                              f"re-run `rvr estimate ... -o {folder}` with this version")
         if not meta.get("frames"):
             raise InputError(f"the cache '{folder}' holds no frame; run `rvr estimate ... -o {folder}` first")
-        generated = {"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames", "stabilized",
-                     "committing"}
         key = key_of(meta)
-        info = {k: v for k, v in meta.items() if k not in key and k not in generated}
+        info = {k: v for k, v in meta.items() if k not in key and k not in GENERATED_FIELDS}
         return cls(folder, key, info)
 
     def _adopt_pending(self) -> None:

@@ -91,6 +91,18 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
 
     if args.output.suffix.lower() != ".json":
         raise RvrError(f"-o {args.output}: the focus file is JSON; give a name ending in .json")
+    from ..estimate.cache import check_cache_source
+    from ..io.lock import writer_active
+    from ..io.paths import check_outputs
+
+    check_outputs("autofocus", [("focus file", args.output), ("plot", args.plot)],
+                  [("input", args.input), ("cache", args.cache), ("depth", args.depth), ("targets", args.targets)])
+    if args.cache is not None:
+        other = writer_active(args.cache)
+        if other is not None:
+            raise RvrError(f"the cache '{args.cache}' is being written by another process ({other}); wait until it "
+                           "has finished, then run this command again")
+        check_cache_source(args.cache, args.input, command="autofocus")
     _check_afnet(args)
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,

@@ -177,3 +177,40 @@ def test_analyze_auto_records_the_cues_and_the_panel_shows_them(movie_strip, vse
     movie_strip.rvr.depth_path = str(movie_strip.rvr.cache_path)
     with pytest.raises(RuntimeError, match="clear the Disparity maps, or set Depth to Auto"):
         bpy.ops.rvr.analyze("EXEC_DEFAULT")
+
+
+def test_analyze_with_other_maps_then_esc_keeps_the_old_cache_intact(movie_strip, vse_depth, no_shipped_weights,
+                                                                     use_prefs, monkeypatch, registered, tmp_path):
+    """Issue 22 item 2: new settings build beside the strip's cache; Esc leaves it as it was."""
+    import numpy as np
+
+    use_prefs(cache_dir=str(tmp_path / "caches"))
+    movie_strip.rvr.depth_path = str(vse_depth)
+    assert bpy.ops.rvr.analyze("EXEC_DEFAULT") == {"FINISHED"}
+    cache, recorded = _cache(movie_strip), movie_strip.rvr.cache_path
+    before = (cache / "meta.json").read_text()
+    stamps = {p.name: p.stat().st_mtime_ns for p in cache.glob("frame_*.exr")}
+    other = tmp_path / "other_maps"
+    other.mkdir()
+    for p in sorted(vse_depth.glob("*.npy")):
+        np.save(other / p.name, np.load(p) * 2.0)
+    movie_strip.rvr.depth_path = str(other)
+    monkeypatch.setattr(registered.operators.jobrun, "STEP_BUDGET_S", 0.0)  # one frame per timer tick
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    op._plan, op._job = op._prepare(bpy.context)
+    bpy.context.window_manager.rvr_job_status = "RUNNING"
+    for _ in range(3):
+        bpy.types.RVR_OT_analyze.modal(op, bpy.context, Event("TIMER"))
+    assert bpy.types.RVR_OT_analyze.modal(op, bpy.context, Event("ESC")) == {"CANCELLED"}
+    assert "unchanged" in bpy.context.window_manager.rvr_job_text
+    assert movie_strip.rvr.cache_path == recorded
+    assert (cache / "meta.json").read_text() == before  # the old cache, complete and stabilized
+    assert stamps == {p.name: p.stat().st_mtime_ns for p in cache.glob("frame_*.exr")}
+    assert json.loads(before)["stabilized"]["frames"]
+    # a complete run with the new maps replaces it (and continues the frames built beside it)
+    op = OperatorStub(bpy.types.RVR_OT_analyze)
+    assert bpy.types.RVR_OT_analyze.execute(op, bpy.context) == {"FINISHED"}
+    assert "reused 3" in op.reports[-1][1]
+    meta = _meta(movie_strip)
+    assert meta["depth"]["path"] == str(other) and meta["frame_count"] == VSE_N and meta["stabilized"]["frames"]
+    assert not list(cache.parent.glob(f".{cache.name}.rebuild-*"))
