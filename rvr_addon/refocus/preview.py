@@ -42,8 +42,10 @@ def in_focus_outline(disparity: np.ndarray, focus: float, aperture: float) -> np
 
 
 def sheet_row(frame: np.ndarray, disparity: np.ndarray, rendered: np.ndarray, focus: float, aperture: float,
-              target: dict | None, caption: str, width: int) -> np.ndarray:
-    """One row ``input | depth | refocused`` (uint8 RGB), each column ``width`` px wide."""
+              target: dict | None, caption: str, width: int,
+              order: tuple[str, ...] = ("input", "depth", "refocused")) -> np.ndarray:
+    """One row of the columns ``order`` names (``input``, ``depth``, ``refocused``; uint8 RGB),
+    each ``width`` px wide."""
     import cv2
 
     from ..estimate.evaluate import colour_map
@@ -60,16 +62,19 @@ def sheet_row(frame: np.ndarray, disparity: np.ndarray, rendered: np.ndarray, fo
         cv2.rectangle(out, (x, y), (x + w, y + hh), (80, 255, 80), thick)
         cv2.putText(out, str(target.get("source", "")), (x, max(12, y - 4)), cv2.FONT_HERSHEY_SIMPLEX,
                     max(0.4, frame.shape[0] / 720), (80, 255, 80), thick, cv2.LINE_AA)
-    cols = [cv2.resize(c, (width, h), interpolation=cv2.INTER_AREA) for c in (frame, depth, out)]
-    cols = [label(cols[0], caption), label(cols[1], "depth (near = bright), green = in focus"),
-            label(cols[2], "refocused")]
+    pictures = {"input": (frame, caption), "depth": (depth, "depth (near = bright), green = in focus"),
+                "refocused": (out, "refocused")}
+    cols = [label(cv2.resize(pictures[k][0], (width, h), interpolation=cv2.INTER_AREA), pictures[k][1])
+            for k in order]
     return np.concatenate(cols, axis=1)
 
 
 def write_contact_sheet(path: Path, clip: Path, cache: Path, rendered: Path, focus_file: Path, rows: int = 4,
-                        width: int = SHEET_WIDTH) -> Path:
-    """Write the contact sheet PNG (``rows`` frames of ``clip``; D from ``cache``, the render
-    ``rendered``, focus from ``focus_file``); returns ``path``."""
+                        width: int = SHEET_WIDTH, frames: list[int] | None = None,
+                        order: tuple[str, ...] = ("input", "depth", "refocused"), quality: int = 90) -> Path:
+    """Write the contact sheet (PNG or JPEG by the suffix of ``path``): ``rows`` frames of ``clip``
+    spread over it (or the clip ``frames`` given), D from ``cache``, the render ``rendered``, focus
+    from ``focus_file``, the columns in ``order``; returns ``path``."""
     import cv2
 
     from ..io.paths import temp_sibling
@@ -81,8 +86,8 @@ def write_contact_sheet(path: Path, clip: Path, cache: Path, rendered: Path, foc
     focus = np.asarray(per.get("focus") or [], np.float64)
     aperture = np.asarray(per.get("aperture") or [], np.float64)
     depth = open_map_sequence(cache, kind="disparity")
-    wanted = pick_frames(info.frame_count, rows)
-    col = max(64, width // 3)
+    wanted = sorted(frames) if frames else pick_frames(info.frame_count, rows)
+    col = max(64, width // len(order))
     lines = []
     for t, (frame, out) in enumerate(zip(iter_frames(clip), iter_frames(rendered))):
         if t > wanted[-1]:
@@ -96,13 +101,13 @@ def write_contact_sheet(path: Path, clip: Path, cache: Path, rendered: Path, foc
         target = governing_target(doc, t)
         who = f" ({target.get('source')})" if target else ""
         caption = f"frame {t} ({t / info.fps:.1f} s), focus D={f:.2f}{who}"
-        lines.append(sheet_row(frame, d, out, f, a, target, caption, col))
+        lines.append(sheet_row(frame, d, out, f, a, target, caption, col, order))
     sheet = np.concatenate(lines, axis=0)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_sibling(path, ".png")
+    tmp = temp_sibling(path, path.suffix)
     try:
-        if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR)):
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality]):
             raise OSError(f"cannot write '{path}'")
         tmp.replace(path)
     finally:
