@@ -268,12 +268,12 @@ class MapSequence:
             st = path.stat()
         except OSError as ex:
             raise InputError(f"cache frame '{path}' cannot be read ({ex}); run `{fix}` again to recompute it") from ex
-        if st.st_size not in expected[0]:
-            raise InputError(f"cache frame '{path}' is truncated or incomplete ({st.st_size} bytes; meta.json records "
-                             f"{expected[0][0]}); run `{fix}` again to recompute it")
         if expected[1] is not None and (st.st_ino, st.st_mtime_ns) != expected[1]:
             raise InputError(f"cache frame '{path}' was rewritten while it was being read (another process writes "
                              f"the cache '{folder}'); run this command again once it has finished")
+        if st.st_size not in expected[0]:
+            raise InputError(f"cache frame '{path}' is truncated or incomplete ({st.st_size} bytes; meta.json records "
+                             f"{expected[0][0]}); run `{fix}` again to recompute it")
         try:
             return _read_raw(path, self.kind, self.prefix)
         except InputError as ex:

@@ -212,7 +212,7 @@ def test_learned_preset_settings_reach_autofocus_and_the_fingerprint(tmp_path):
 
     s = BatchSettings(output=tmp_path, preset="learned", afnet_weights=DEFAULT_WEIGHTS, afnet_threshold=0.4,
                       afnet_speaker=False)
-    plan = plan_clips([tmp_path / "a.mp4"], s, "f" * 16)[0]
+    plan = plan_clips([tmp_path / "clips" / "a.mp4"], s, "f" * 16)[0]  # not OUT/a.mp4: that is its output
     a = autofocus_settings(plan, s)
     assert (a.preset, a.afnet_weights, a.afnet_threshold, a.afnet_speaker) == ("learned", DEFAULT_WEIGHTS, 0.4, False)
     assert len(afnet_id(s)) == 16 and afnet_id(BatchSettings(output=tmp_path)) == ""
