@@ -82,7 +82,9 @@ def adopt_estimates(clip_cache: Path, staging: Path) -> int:
     if not staging.is_dir():
         return 0  # merged before (the folder goes only after the clip cache recorded its frames)
     part = ClipCache.open_existing(staging)
-    target = ClipCache(clip_cache, dict(part.key), dict(part.info))
+    # in place: the chunks are adopted one by one, so a cache of other settings is cleared here
+    # (it is the batch's own; every chunk is complete before its merge)
+    target = ClipCache(clip_cache, dict(part.key), dict(part.info), beside=False)
     files = {i: frame_path(staging, i) for i in part.frame_indices()}
     moved = target.adopt(files)
     shutil.rmtree(staging, ignore_errors=True)
