@@ -250,6 +250,10 @@ class RenderJob:
             self._focus, self._aperture = resolve_track(self.track, self.total, start=track_start)
         else:
             focus = center_focus(first_d) if s.focus is None else float(s.focus)
+            if s.focus is None:
+                log.warning("%s: no focus track and no --focus: focus stays on the centre of the first frame "
+                            "(disparity %.2f) for the whole clip; `rvr autofocus` chooses the subjects and when to "
+                            "pull (then --track FOCUS.json), `rvr refocus` does everything", s.input, focus)
             self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total,
                                                         start=track_start)
         self._frames = iter_frames(s.input, start=self.start, stop=self.stop)
