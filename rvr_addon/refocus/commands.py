@@ -25,9 +25,9 @@ def parse_point(text: str) -> tuple[float, float]:
 
 def add_parser(sub) -> None:
     """Register ``rvr refocus``."""
-    from ..depth.system import METHODS
-    from ..laaf.combine import DEFAULT_PRESET, PRESETS
-    from .job import DEFAULT_MAX_SIZE
+    from ..depth.methods import METHODS
+    from ..laaf.presets import DEFAULT_PRESET, PRESETS
+    from . import DEFAULT_MAX_SIZE
 
     p = sub.add_parser("refocus", help="one command: a clip in, a refocused video out (estimate, stabilize, "
                                        "autofocus, render)",

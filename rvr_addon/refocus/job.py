@@ -21,12 +21,10 @@ from .. import __version__
 from ..errors import InputError
 from ..io.paths import temp_sibling
 from ..render.aperture import ApertureSpec
+from . import DEFAULT_MAX_SIZE
 from .chain import JobChain, Stage
 
 log = logging.getLogger(__name__)
-
-DEFAULT_MAX_SIZE = 1280
-"""Long side (px) the pipeline works at unless told otherwise (``--max-size 0``: the clip's own)."""
 
 STAGE_COST = {"working copy": 0.02, "estimate": 0.30, "stabilize": 0.12, "autofocus": 0.07, "render": 0.20,
               "before | after": 0.05, "contact sheet": 0.01}
@@ -121,25 +119,28 @@ class RefocusRun:
 
 
 def check_outputs(s: RefocusSettings) -> None:
-    """Refuse outputs that would overwrite the clip or each other (before anything runs)."""
+    """Refuse outputs that would overwrite the clip (or lie inside its frames folder) or each
+    other, before anything runs."""
+    from ..io.paths import check_outputs as refuse_overlaps
     from ..pipeline import VIDEO_SUFFIXES
 
     if Path(s.output).suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"-o {s.output}: the refocused video is a movie file; give a name ending in .mp4")
-    outs = [Path(s.output)] + [p for p in (s.side_by_side, s.preview) if p is not None]
-    seen: dict[str, Path] = {}
-    src = Path(s.input).resolve()
-    for p in outs:
-        r = str(Path(p).resolve())
-        if r == str(src) or (Path(p).exists() and src.exists() and os.path.samefile(p, src)):
-            raise InputError(f"the output '{p}' is the input clip '{s.input}': choose another output name")
-        if r in seen:
-            raise InputError(f"'{p}' is given for two outputs; give each its own name")
-        seen[r] = p
     if s.side_by_side is not None and Path(s.side_by_side).suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"--side-by-side {s.side_by_side}: give a name ending in .mp4")
     if s.preview is not None and Path(s.preview).suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"--preview {s.preview}: give a name ending in .png or .jpg")
+    outputs = [("refocused video", s.output), ("before | after video", s.side_by_side),
+               ("contact sheet", s.preview)]
+    refuse_overlaps("refocus", outputs, [("clip", s.input)])
+    seen: dict[Path, str] = {}
+    for what, p in outputs:
+        if p is None:
+            continue
+        r = Path(p).resolve()
+        if r in seen:
+            raise InputError(f"'{p}' is given as the {seen[r]} and the {what}; give each its own name")
+        seen[r] = what
 
 
 def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:

@@ -112,9 +112,12 @@ def test_max_size_and_a_range_make_a_working_copy_of_that_size_and_length(clip, 
 def test_an_output_that_is_the_input_is_refused_before_anything_runs(clip, tmp_path, capsys):
     data = clip.read_bytes()
     assert main(["refocus", str(clip), "-o", str(clip.parent / ".." / clip.parent.name / clip.name), *FAST]) == 2
-    assert "is the input clip" in capsys.readouterr().err
+    assert "same file or folder as the clip" in capsys.readouterr().err
     assert clip.read_bytes() == data
     assert main(["refocus", str(clip), "-o", str(tmp_path / "x.mov.txt"), *FAST]) == 2
+    same = str(tmp_path / "a.mp4")
+    assert main(["refocus", str(clip), "-o", same, "--side-by-side", same, *FAST]) == 2
+    assert "give each its own name" in capsys.readouterr().err
 
 
 def test_f_stop_is_an_aperture_relative_to_the_f2_reference_lens(clip):
