@@ -60,7 +60,7 @@ def add_run_args(p: argparse.ArgumentParser, iterations: int) -> None:
 
 def add_depth_method_args(p, note: str = "") -> None:
     """``--depth-method`` and ``--hfov`` (rvr estimate, rvr batch); ``note`` ends the first's help."""
-    from .depth.system import METHODS
+    from .depth.methods import METHODS
 
     p.add_argument("--depth-method", choices=METHODS, default="auto",
                    help="where D comes from: auto (default: parallax where the camera translates, people layers "
@@ -190,7 +190,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def add_train_parser(sub) -> None:
-    from .estimate.losses import LossWeights
+    from .estimate.loss_weights import LossWeights
 
     p = sub.add_parser("train", help="train the RGBD-HDR estimator (disparity + HDR from one frame)",
                        description="Train the RGBD-HDR estimator through the differentiable renderer (paper "
@@ -478,8 +478,49 @@ def cmd_eval_estimator(args: argparse.Namespace) -> int:
     return 0
 
 
+class RvrArgumentParser(argparse.ArgumentParser):
+    """The ``rvr`` parser: an option no sub-command knows (``rvr render --aperturee 2``) is reported by
+    that sub-command's parser, with its usage and the closest option it has ("did you mean
+    --aperture?"), instead of the top-level usage that plain argparse prints."""
+
+    def parse_args(self, args=None, namespace=None):
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            parser = self._subcommand_parser(ns) or self
+            parser.error(unrecognized_message(parser, extras))
+        return ns
+
+    def _subcommand_parser(self, ns: argparse.Namespace) -> argparse.ArgumentParser | None:
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                return action.choices.get(getattr(ns, action.dest, None) or "")
+        return None
+
+
+def unrecognized_message(parser: argparse.ArgumentParser, extras: list[str]) -> str:
+    """``unrecognized arguments: --aperturee; did you mean --aperture?`` (difflib over ``parser``'s
+    option strings; no suggestion when nothing is close)."""
+    import difflib
+
+    options = [o for action in parser._actions for o in action.option_strings]
+    hints = []
+    for arg in extras:
+        if not arg.startswith("-") or arg == "-":
+            continue
+        flag = arg.split("=", 1)[0]
+        close = difflib.get_close_matches(flag, options, n=1)
+        if close:
+            hints.append((flag, close[0]))
+    text = f"unrecognized arguments: {' '.join(extras)}"
+    if len(hints) == 1:
+        text += f"; did you mean {hints[0][1]}?"
+    elif hints:
+        text += "; did you mean " + ", ".join(f"{match} (for {flag})" for flag, match in hints) + "?"
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rvr", description="RVR-LAAF: refocusable video rendering.")
+    parser = RvrArgumentParser(prog="rvr", description="RVR-LAAF: refocusable video rendering.")
     parser.add_argument("--version", action="version", version=f"rvr {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     add_render_parser(sub)

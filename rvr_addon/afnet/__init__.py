@@ -12,9 +12,22 @@ with the presets.
 """
 from __future__ import annotations
 
-from .annotations import ANNOTATION_FORMAT, AnnotatedClip, Annotation, read_annotations, write_annotations
-from .infer import DEFAULT_WEIGHTS, load_afnet, predict_clip
-from .model import AFNet, AFNetConfig
+from .config import AFNetConfig
 
 __all__ = ["AFNet", "AFNetConfig", "ANNOTATION_FORMAT", "AnnotatedClip", "Annotation", "read_annotations",
            "write_annotations", "DEFAULT_WEIGHTS", "load_afnet", "predict_clip"]
+
+_LAZY = {"ANNOTATION_FORMAT": ".annotations", "AnnotatedClip": ".annotations", "Annotation": ".annotations",
+         "read_annotations": ".annotations", "write_annotations": ".annotations", "DEFAULT_WEIGHTS": ".infer",
+         "load_afnet": ".infer", "predict_clip": ".infer", "AFNet": ".model"}
+"""Exports imported on first use (:mod:`.model` and :mod:`.infer` load torch; ``rvr --help`` must not)."""
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value

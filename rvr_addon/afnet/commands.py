@@ -11,7 +11,7 @@ from ..errors import RvrError
 
 def add_parser(sub) -> None:
     """Register ``rvr train-afnet`` on the ``rvr`` sub-parsers."""
-    from .model import AFNetConfig
+    from .config import AFNetConfig
 
     d = AFNetConfig()
     p = sub.add_parser("train-afnet", help="train AF-Net (learned look-ahead focus for any video)",

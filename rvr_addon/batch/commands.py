@@ -10,9 +10,9 @@ from ..cli import add_depth_method_args, on_interrupt
 
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``batch`` sub-command to the ``rvr`` sub-parsers."""
-    from ..laaf.combine import PRESETS
     from ..laaf.commands import _afnet_args, _pull_args
-    from ..temporal.filter import TemporalSettings
+    from ..laaf.presets import PRESETS
+    from ..temporal.settings import TemporalSettings
     from .settings import FORMATS
 
     d = TemporalSettings()

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..laaf.puller import PullSettings
-from ..temporal.filter import TemporalSettings
+from ..temporal.settings import TemporalSettings
 
 FORMATS = ("mp4", "png", "exr")
 BATCH_DIR = ".rvr_batch"

@@ -25,10 +25,10 @@ import numpy as np
 from ..errors import InputError
 from .cues import DEFAULT_HFOV_DEG, CueMap
 from .fuse import DepthFuser, FusedDepth, FusionSettings
+from .methods import METHODS
 
 log = logging.getLogger(__name__)
 
-METHODS = ("auto", "parallax", "people", "network", "external")
 PROBE_FRAMES = 48
 """Frames of the range the ``auto`` check for camera translation looks at."""
 

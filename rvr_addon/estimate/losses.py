@@ -65,6 +65,7 @@ from ..errors import InputError
 from ..render.aperture import ApertureSpec
 from ..render.model import K_HDR
 from ..render.torch_render import render_torch
+from .loss_weights import LossWeights  # noqa: F401 - re-exported: rvr_addon.estimate.losses.LossWeights
 
 MS_SSIM_WEIGHTS = (0.0448, 0.2856, 0.3001, 0.2363, 0.1333)
 """Per-scale exponents of Wang et al. 2003 (finest first)."""
@@ -79,25 +80,6 @@ _VGG_TAPS = {"conv1_2": 3, "conv2_2": 8, "conv3_2": 13, "conv4_2": 22, "conv5_2"
 """Index in ``features`` of the ReLU after each tapped convolution (torchvision's layout)."""
 _IMAGENET_MEAN = (0.485, 0.456, 0.406)
 _IMAGENET_STD = (0.229, 0.224, 0.225)
-
-
-@dataclass(frozen=True)
-class LossWeights:
-    """Weights of the loss terms (paper: w1 = 10; the feature weights are ours, see module doc)."""
-
-    pix: float = 1.0
-    ssim: float = 0.5
-    grad: float = 1.0
-    vgg: float = 1.0
-    smooth: float = 10.0
-    supervised: float = 1.0
-    """w_sup: weight of the supervised ground-truth terms (ours; 0 = the paper's loss)."""
-    sup_disparity: float = 1.0
-    sup_disparity_grad: float = 0.5
-    sup_exponent: float = 1.0
-    sup_exponent_zero: float = 0.1
-    disparity_invariant: bool = False
-    """Scale-and-shift-invariant L_D (only the shape of D is supervised)."""
 
 
 # ------------------------------------------------------------------------------ rendering

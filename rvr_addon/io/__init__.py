@@ -1,11 +1,24 @@
 """Input/output: clips (video or image sequence), EXR, per-frame maps, focus tracks, atomic writers."""
-from .exr import read_exr, write_exr
-from .maps import MapSequence, open_map_sequence
-from .track import FocusTrack, constant_track, load_track, resolve_track
-from .video import ClipInfo, iter_frames, probe_clip
-from .writer import ImageSequenceWriter, VideoWriter
+from __future__ import annotations
 
 __all__ = [
     "ClipInfo", "FocusTrack", "ImageSequenceWriter", "MapSequence", "VideoWriter", "constant_track",
     "iter_frames", "load_track", "open_map_sequence", "probe_clip", "read_exr", "resolve_track", "write_exr",
 ]
+
+_LAZY = {"read_exr": ".exr", "write_exr": ".exr", "MapSequence": ".maps", "open_map_sequence": ".maps",
+         "FocusTrack": ".track", "constant_track": ".track", "load_track": ".track", "resolve_track": ".track",
+         "ClipInfo": ".video", "iter_frames": ".video", "probe_clip": ".video", "ImageSequenceWriter": ".writer",
+         "VideoWriter": ".writer"}
+"""Exports imported on first use: importing a light submodule (``io.paths``, ``io.lock``) loads no NumPy or
+OpenEXR, so ``rvr --help`` stays fast."""
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value

@@ -11,9 +11,22 @@ chunks by ``rvr batch``), ``focusfile`` (the JSON ``rvr render`` reads),
 """
 from __future__ import annotations
 
-from .keyframes import Key, evaluate_keys, keyframes
-from .nft import NFT, load_nfts, save_nfts, validate_nfts
-from .puller import PROFILES, PullSettings, PullTarget, compose_track, pull_weight
+from .presets import PROFILES
 
 __all__ = ["NFT", "load_nfts", "save_nfts", "validate_nfts", "Key", "keyframes", "evaluate_keys", "PROFILES",
            "PullSettings", "PullTarget", "compose_track", "pull_weight"]
+
+_LAZY = {"Key": ".keyframes", "evaluate_keys": ".keyframes", "keyframes": ".keyframes", "NFT": ".nft",
+         "load_nfts": ".nft", "save_nfts": ".nft", "validate_nfts": ".nft", "PullSettings": ".puller",
+         "PullTarget": ".puller", "compose_track": ".puller", "pull_weight": ".puller"}
+"""Exports imported on first use (NumPy and the engine load then; ``rvr --help`` needs none of them)."""
+
+
+def __getattr__(name: str):
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+    globals()[name] = value
+    return value

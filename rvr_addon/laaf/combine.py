@@ -34,16 +34,8 @@ import numpy as np
 from .detectors.base import DetectorOutput
 from .focus_reading import read_focus
 from .nft import Box
+from .presets import DEFAULT_PRESET, PRESETS  # noqa: F401 - defined in .presets (light), re-exported here
 
-PRESETS: dict[str, tuple[str, ...]] = {
-    "action": ("action", "saliency"),
-    "conversation": ("speech", "face"),
-    "faces": ("face",),
-    "salient": ("saliency",),
-    "learned": ("afnet",),  # AF-Net (rvr_addon/afnet): proposes NFTs itself, needs trained weights
-}
-DEFAULT_PRESET = "conversation"
-"""The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
 FALLBACKS = {"conversation": "faces", "action": "salient"}
 PRIMARY = {"action": "action", "conversation": "speech"}
 INITIAL_CHAIN = ("face", "saliency")  # the first focus when the preset finds nothing on frame 0

@@ -9,7 +9,7 @@ from ..errors import RvrError
 
 
 def _pull_args(p: argparse.ArgumentParser) -> None:
-    from .puller import PROFILES
+    from .presets import PROFILES
 
     p.add_argument("--pull-frames", type=int, default=10, help="length of a focus pull in frames (default 10)")
     p.add_argument("--lead-frames", type=int, default=5,
@@ -52,7 +52,7 @@ def _pull(args: argparse.Namespace):
 
 def add_autofocus_parser(sub) -> None:
     """``rvr autofocus INPUT (--cache CACHE | --depth DEPTH) --preset P -o focus.json``."""
-    from .combine import PRESETS
+    from .presets import PRESETS
 
     p = sub.add_parser("autofocus", help="look-ahead autofocus: decide where and when to focus (focus.json)",
                        description="Look-Ahead Autofocus (paper section 5): detectors (face, saliency, action, "
@@ -153,7 +153,7 @@ def plot_focus(path: Path, result) -> None:
 
 def add_eval_focus_parser(sub) -> None:
     """``rvr eval-focus DATASET -o REPORT [--presets ...]``."""
-    from .evaluate import EVAL_PRESETS
+    from .presets import EVAL_PRESETS
 
     p = sub.add_parser("eval-focus", help="evaluate LAAF on harness clips (mean |dt|, mean |dd|)",
                        description="Run look-ahead and causal LAAF per preset on each harness clip (ground-truth "

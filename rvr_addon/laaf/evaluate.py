@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .combine import PRESETS
 from .lookahead import AutofocusJob, AutofocusResult, AutofocusSettings
+from .presets import EVAL_PRESETS, VARIANTS  # noqa: F401 - re-exported: rvr_addon.laaf.evaluate.EVAL_PRESETS
 from .puller import PullSettings, PullTarget, compose_track
 
 log = logging.getLogger(__name__)
@@ -50,9 +50,6 @@ PRESET_SCRIPTS = {"action": ("enter", "start-moving"), "conversation": ("convers
                   "faces": ("conversation",), "salient": ("enter", "start-moving"),
                   "learned": ("enter", "start-moving", "conversation", "random"),
                   "learned-map": ("enter", "start-moving", "conversation", "random")}
-VARIANTS = {"learned-map": ("learned", {"afnet_speaker": False})}
-"""Evaluation-only names: (preset, AutofocusSettings overrides)."""
-EVAL_PRESETS = (*PRESETS, *VARIANTS)
 
 
 @dataclass

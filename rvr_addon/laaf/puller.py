@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-PROFILES = ("linear", "ease_in_out_cubic", "ease_in_out_sine", "critically_damped")
+from .presets import PROFILES
+
 DAMPING_OMEGA = 7.0  # critically damped spring: natural frequency in 1/pull-length units (99.3% at the end)
 
 

@@ -9,8 +9,7 @@ from ..cli import on_interrupt
 
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``stabilize`` sub-command to the ``rvr`` sub-parsers."""
-    from .filter import TemporalSettings
-    from .flow import PRESETS
+    from .settings import FLOW_PRESETS, TemporalSettings
 
     d = TemporalSettings()
     p = sub.add_parser("stabilize", help="temporally stabilize the D and E of an estimation cache (paper 4.2)",
@@ -38,7 +37,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                         "(default %(default)s)")
     p.add_argument("--outlier-scale-e", type=float, default=d.outlier_scale_e, metavar="S",
                    help="the same for E, in E units (default %(default)s)")
-    p.add_argument("--flow-preset", choices=tuple(PRESETS), default=d.flow_preset,
+    p.add_argument("--flow-preset", choices=FLOW_PRESETS, default=d.flow_preset,
                    help="OpenCV DIS preset (default %(default)s)")
     p.add_argument("--flow-size", type=int, default=d.flow_max_side, metavar="PX",
                    help="longer side of the resolution the flow runs at (default %(default)s px)")

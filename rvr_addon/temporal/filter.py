@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Iterable, Iterator
 
 import cv2
@@ -58,74 +58,12 @@ import numpy as np
 
 from ..errors import InputError
 from . import flow as fl
+from .settings import WINDOWS, TemporalSettings  # noqa: F401 - re-exported: rvr_addon.temporal.filter.TemporalSettings
 
 log = logging.getLogger(__name__)
 
-WINDOWS = ("causal", "centred")
 Output = tuple[int, np.ndarray, np.ndarray, np.ndarray]
 """(clip index, D (H, W) px, E (H, W, 3), confidence (H, W) in [0, 1]), all float32."""
-
-
-@dataclass(frozen=True)
-class TemporalSettings:
-    """Settings of the temporal filter (units in the names; see the module docstring).
-
-    window: "causal" (paper) or "centred". m: frames besides the current one (paper: M = 6).
-    delta_px: forward-backward threshold in px at the flow resolution, plus ``delta_rel``
-    times the flow magnitude. photometric_tol: colour mismatch (fraction of full scale, mean
-    over 5x5 px) beyond which a warped pixel is occluded; pixel_tol: the same for one pixel;
-    slack_px: misregistration (flow px) forgiven on strong edges (the mismatch is lowered by
-    slack_px times the local gradient). outlier_scale_d: scale of the D outlier weight as a
-    fraction of the frame width (px of D = this * width); outlier_scale_e: the same for E (E
-    units). flow_preset: DIS preset; flow_max_side: longer side of the flow resolution (px).
-    cut_fraction: share of failing pixels that makes a scene cut. erode_px: erosion of each
-    link's valid mask, flow px (0: eroding erases small highlights from the masks).
-    """
-
-    window: str = "causal"
-    m: int = 6
-    delta_px: float = 1.0
-    delta_rel: float = 0.05
-    photometric_tol: float = 0.05
-    pixel_tol: float = 0.15
-    slack_px: float = 0.2
-    outlier_scale_d: float = 0.004
-    outlier_scale_e: float = 0.01
-    flow_preset: str = "medium"
-    flow_max_side: int = 320
-    cut_fraction: float = 0.6
-    erode_px: int = 0
-
-    def __post_init__(self) -> None:
-        if self.window not in WINDOWS:
-            raise InputError(f"temporal window {self.window!r} is not known; use one of {', '.join(WINDOWS)}")
-        if not 1 <= int(self.m) <= 15:
-            raise InputError(f"temporal window size M={self.m} must be between 1 and 15 (paper: 6)")
-        if self.flow_preset not in fl.PRESETS:
-            raise InputError(f"flow preset {self.flow_preset!r} is not known; use one of {', '.join(fl.PRESETS)}")
-        if self.flow_max_side < 16:
-            raise InputError(f"flow_max_side={self.flow_max_side} px is too small; use at least 16 (e.g. 480)")
-        positive = {"delta_px": self.delta_px, "photometric_tol": self.photometric_tol,
-                    "outlier_scale_d": self.outlier_scale_d, "outlier_scale_e": self.outlier_scale_e}
-        for name, value in positive.items():
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"temporal setting {name}={value!r} must be a positive number")
-        if not 0 < self.cut_fraction <= 1:
-            raise InputError(f"cut_fraction={self.cut_fraction!r} must be in (0, 1]")
-
-    @property
-    def past(self) -> int:
-        """P: past frames in the window."""
-        return int(self.m) if self.window == "causal" else int(self.m) // 2
-
-    @property
-    def future(self) -> int:
-        """F: future frames in the window (the output lags the input by F frames)."""
-        return int(self.m) - self.past
-
-    def to_dict(self) -> dict:
-        """JSON-serialisable settings (the cache's stabilized record is keyed by this)."""
-        return asdict(self)
 
 
 # ----------------------------------------------------------------------------------------

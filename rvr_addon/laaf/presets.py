@@ -1,0 +1,23 @@
+"""The names the LAAF command lines offer, importable without NumPy or the detectors (``rvr
+autofocus --help``, ``rvr batch --help``, ``rvr refocus --help`` and the Blender panel list them):
+the AI-assist presets (:mod:`.combine`), the pull profiles (:mod:`.puller`) and the names
+``rvr eval-focus`` evaluates (:mod:`.evaluate`)."""
+from __future__ import annotations
+
+PRESETS: dict[str, tuple[str, ...]] = {
+    "action": ("action", "saliency"),
+    "conversation": ("speech", "face"),
+    "faces": ("face",),
+    "salient": ("saliency",),
+    "learned": ("afnet",),  # AF-Net (rvr_addon/afnet): proposes NFTs itself, needs trained weights
+}
+"""Detector names of each AI-assist preset."""
+DEFAULT_PRESET = "conversation"
+"""The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
+
+PROFILES = ("linear", "ease_in_out_cubic", "ease_in_out_sine", "critically_damped")
+"""Focus-pull profiles (:func:`.puller.pull_weight`)."""
+
+VARIANTS = {"learned-map": ("learned", {"afnet_speaker": False})}
+"""Evaluation-only names of ``rvr eval-focus``: (preset, AutofocusSettings overrides)."""
+EVAL_PRESETS = (*PRESETS, *VARIANTS)
