@@ -104,7 +104,11 @@ class DisparitySource:
             path = frame_path(self.cache, index)
             if not path.is_file():
                 raise InputError(f"{self.label} lacks frame {index} ('{path.name}'); run `rvr estimate` first")
-            channels = read_exr(path)
+            try:
+                channels = read_exr(path)
+            except InputError as ex:  # truncated or corrupt: the cache's own fix
+                raise InputError(f"{ex} It belongs to the {self.label}: run `rvr estimate CLIP -o {self.cache}` again "
+                                 "to recompute it.") from ex
             name = self.channel if self.channel in channels else pick_disparity_channel(channels)
             if self.channel is None:
                 self.channel = name
