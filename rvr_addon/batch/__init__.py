@@ -16,3 +16,6 @@ frame range of one clip. What this package adds is the plan around them:
 
 No module imports bpy; dask is imported only by :mod:`.graph`, :mod:`.worker` and the CLI.
 """
+
+FORMATS = ("mp4", "png", "exr")
+"""Output formats of ``rvr batch --format`` (here, light: ``rvr batch --help`` lists them)."""

@@ -13,7 +13,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
     from ..laaf.commands import _afnet_args, _pull_args
     from ..laaf.presets import PRESETS
     from ..temporal.settings import TemporalSettings
-    from .settings import FORMATS
+    from . import FORMATS
 
     d = TemporalSettings()
     p = sub.add_parser("batch", help="refocus many clips on a Dask cluster (analyze -> autofocus -> render)",

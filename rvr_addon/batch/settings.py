@@ -12,8 +12,8 @@ from pathlib import Path
 from .. import __version__
 from ..laaf.puller import PullSettings
 from ..temporal.settings import TemporalSettings
+from . import FORMATS  # noqa: F401 - re-exported: rvr_addon.batch.settings.FORMATS
 
-FORMATS = ("mp4", "png", "exr")
 BATCH_DIR = ".rvr_batch"
 """Hidden folder inside the output folder: done markers and per-clip work in progress."""
 

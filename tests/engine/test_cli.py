@@ -12,12 +12,26 @@ from rvr_addon import cli
 HEAVY = {"torch", "cv2", "bpy", "dask", "mediapipe", "scipy", "onnxruntime", "distributed"}
 
 
-def test_building_the_parser_imports_no_heavy_module():
+def modules_after_build_parser(tops: set[str]) -> str:
+    """Modules of the top-level packages ``tops`` that importing the CLI and building its parser loads
+    (in a fresh interpreter), as the printed sorted list."""
     code = ("import rvr_addon.cli, sys; rvr_addon.cli.build_parser(); "
-            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {sorted(HEAVY)!r}))")
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in {sorted(tops)!r}))")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.strip() == "[]", f"rvr --help would import {done.stdout.strip()}"
+    return done.stdout.strip()
+
+
+def test_building_the_parser_imports_no_heavy_module():
+    loaded = modules_after_build_parser(HEAVY)
+    assert loaded == "[]", f"rvr --help would import {loaded}"
+
+
+def test_building_the_parser_imports_no_numpy_either():
+    """Parsers take their choices and defaults from light modules (laaf.presets, depth.methods,
+    temporal.settings, afnet.config, estimate.loss_weights, the batch and refocus packages)."""
+    loaded = modules_after_build_parser({"numpy"})
+    assert loaded == "[]", f"rvr --help would import {loaded}"
 
 
 def test_every_subcommand_help_works(capsys):
