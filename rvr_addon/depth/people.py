@@ -27,12 +27,15 @@ The detector keeps no state between frames (each frame's answer depends on that 
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
+import os
 import sys
 import types
+import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import cv2
 import numpy as np
@@ -132,6 +135,9 @@ def import_mediapipe() -> Any:
                 stubs.append(name)
             sys.modules["matplotlib"].pyplot = sys.modules["matplotlib.pyplot"]  # type: ignore[attr-defined]
         mp = importlib.import_module("mediapipe")
+        # protobuf 4 deprecates an API mediapipe 0.10.14 calls on every frame: one line per run is noise
+        warnings.filterwarnings("ignore", message=r"SymbolDatabase\.GetPrototype\(\) is deprecated",
+                                category=UserWarning)
         mp.solutions.selfie_segmentation, mp.solutions.face_detection, mp.solutions.face_mesh  # noqa: B018
     except (ImportError, AttributeError) as exc:
         raise PeopleModelError(f"the people depth cue needs the Python package {MEDIAPIPE_PIN} (its bundled "
@@ -143,6 +149,28 @@ def import_mediapipe() -> Any:
     return mp
 
 
+@contextlib.contextmanager
+def native_stderr_silenced() -> Iterator[None]:
+    """Send what native code writes to file descriptor 2 to /dev/null inside the block (MediaPipe's
+    TFLite logs start-up notices there that no setting turns off); Python's own ``sys.stderr`` is
+    flushed first and restored after. Errors still arrive as Python exceptions."""
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no real fd 2 (embedded, captured): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 2)
+    finally:
+        os.close(saved)
+
+
 def open_models(who: str, segment: bool, faces: float | None, mesh: bool) -> dict[str, Any]:
     """MediaPipe's bundled solutions by name: ``segment`` (selfie segmentation, landscape),
     ``faces`` (full-range face detection at this score threshold; None: not loaded), ``mesh``
@@ -151,14 +179,18 @@ def open_models(who: str, segment: bool, faces: float | None, mesh: bool) -> dic
     mp = import_mediapipe()
     models: dict[str, Any] = {}
     try:
-        if segment:
-            models["segment"] = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=1)
-        if faces is not None:
-            models["faces"] = mp.solutions.face_detection.FaceDetection(min_detection_confidence=faces,
-                                                                        model_selection=1)
-        if mesh:
-            models["mesh"] = mp.solutions.face_mesh.FaceMesh(
-                static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.5)
+        with native_stderr_silenced():  # TFLite's start-up chatter (XNNPACK, feedback manager)
+            if segment:
+                models["segment"] = mp.solutions.selfie_segmentation.SelfieSegmentation(model_selection=1)
+            if faces is not None:
+                models["faces"] = mp.solutions.face_detection.FaceDetection(min_detection_confidence=faces,
+                                                                            model_selection=1)
+            if mesh:
+                models["mesh"] = mp.solutions.face_mesh.FaceMesh(
+                    static_image_mode=True, max_num_faces=1, refine_landmarks=True, min_detection_confidence=0.5)
+            blank = np.zeros((64, 64, 3), np.uint8)
+            for model in models.values():  # the graphs start (and log) on their first frame
+                model.process(blank)
     except Exception as exc:  # mediapipe raises RuntimeError/ValueError from its C++ graph
         for model in models.values():
             model.close()
