@@ -267,6 +267,7 @@ class ClipCache:
         self.stabilized: dict | None = None
         self._dirty = 0
         self._committing = False
+        self._parent_lock = None
         if self.target.exists() and not self.target.is_dir():
             raise OutputError(f"cache path '{self.target}' is a file; give a folder for the cache (-o DIR)")
         self._lock = folder_lock.acquire(self.target, "the cache")
@@ -365,6 +366,41 @@ class ClipCache:
     def close(self) -> None:
         """Give the folder's lock back (the object must not write afterwards)."""
         self._lock = None
+        self._parent_lock = None
+
+    def fork(self, tag: dict, why: str) -> "ClipCache":
+        """A copy of this cache beside it, under the same key, that :meth:`commit` puts in its place
+        (``rvr stabilize`` with other settings keeps the complete stabilized cache until the new
+        one is). The frames are hard links (copies where the filesystem has none): frame files are
+        only ever replaced by a rename, never written in place, so the original stays as it is.
+        An interrupted fork with the same ``tag`` (JSON-serialisable) is resumed."""
+        import shutil
+
+        folder = rebuild_folder(self.target, {**self.key, "fork": tag})
+        if not folder.is_dir():
+            tmp = temp_sibling(folder, ".seed")
+            tmp.mkdir()
+            try:
+                for number in self.frames:
+                    src = self.folder / FRAME_NAME.format(int(number))
+                    try:
+                        os.link(src, tmp / src.name)
+                    except OSError:
+                        shutil.copy2(src, tmp / src.name)
+                shutil.copy2(self.folder / "meta.json", tmp / "meta.json")
+                tmp.rename(folder)
+            except BaseException:
+                shutil.rmtree(tmp, ignore_errors=True)
+                raise
+        child = ClipCache(folder, self.key, self.info, self.flush_every, beside=False)
+        child.target, child.replaces, child._parent_lock = self.target, why, self._lock
+        log.info("cache '%s': %s; building beside it in '%s' (the cache stays as it is until that is complete)",
+                 self.target, why, folder)
+        return child
+
+    def stabilized_complete(self) -> bool:
+        """True if every recorded frame holds stabilized channels (see :func:`stabilized_complete`)."""
+        return stabilized_complete({"frames": self.frames, "stabilized": self.stabilized})
 
     def _remove_frames(self) -> int:
         n = 0

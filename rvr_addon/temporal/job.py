@@ -8,7 +8,10 @@ stay). ``meta.json``'s ``stabilized`` record holds the filter settings and the f
 
 * a rerun with the same settings skips the frames done and resumes after the last one; the
   filter is warmed up on the P frames before it, so the result equals an uninterrupted run;
-* a rerun with other settings (or ``--force``) recomputes every frame;
+* a rerun with other settings (or ``--force``) recomputes every frame; when the cache is
+  completely stabilized, that happens in a copy beside it (hard links,
+  :meth:`~rvr_addon.estimate.cache.ClipCache.fork`) put in its place only once every frame is
+  done, so a cancel leaves the earlier stabilized cache as it was (a rerun resumes the copy);
 * re-estimating a raw frame drops the record (the cache does this).
 
 Recorded frames that are not consecutive (estimated in several ranges) are filtered as
@@ -17,6 +20,7 @@ jobs, and :meth:`StabilizeJob.run` shows a tqdm bar.
 """
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -91,6 +95,11 @@ class StabilizeJob:
             log.info("'%s' is %dx%d, the cache %dx%d: flows are computed on the frames and resampled to the cache",
                      self.source, self.clip.width, self.clip.height, *self.resolution)
         record = {**s.temporal.to_dict(), "engine_version": __version__}
+        old = self.cache.stabilized
+        if self.cache.stabilized_complete() and (s.force or old["settings"] != json.loads(json.dumps(record))):
+            # a complete stabilized cache stays as it is until the new one is complete
+            self.cache = self.cache.fork({"stabilized": record, "force": s.force},
+                                         "stabilized with " + ("--force" if s.force else "other settings"))
         if s.force:
             self.cache.stabilized = None
         self.cache.begin_stabilized(record)
@@ -112,6 +121,7 @@ class StabilizeJob:
         self._filter: TemporalFilter | None = None
         self._finished = not self.plan
         if self._finished:
+            self.cache.commit()
             self.cache.close()
             self.text = f"all {len(indices)} frames already stabilized with these settings (--force recomputes)"
 
@@ -166,6 +176,8 @@ class StabilizeJob:
         if self._stream is not None:
             self._stream.close()
         self.cache.flush()
+        if not self.todo:
+            self.cache.commit()  # a fork beside the cache (other settings) replaces it only now
         self.cache.close()
         self._finished = True
         cuts = len(self._filter.cuts) if self._filter is not None else 0

@@ -319,3 +319,28 @@ def test_a_cache_of_another_clip_is_refused_and_rvr_estimate_recomputes_it(clip,
     assert job.computed == N
     assert json.loads((cache / "meta.json").read_text())["source"]["path"] == str(other)
     check_cache_source(cache, other)
+
+
+def test_stabilizing_with_other_settings_keeps_the_stabilized_cache_until_complete(clip, tmp_path):
+    from rvr_addon.estimate.cache import stabilized_complete
+    from rvr_addon.temporal.filter import TemporalSettings
+    from rvr_addon.temporal.job import StabilizeJob, StabilizeSettings
+
+    cache = tmp_path / "cache"
+    _estimate(clip, cache, _maps(tmp_path / "a", 1.0))
+    StabilizeJob(StabilizeSettings(cache=cache)).run(progress=False)
+    before = _snapshot(cache)
+    assert stabilized_complete(json.loads(before["meta.json"]))
+    other = StabilizeSettings(cache=cache, temporal=TemporalSettings(m=2))
+    job = StabilizeJob(other)
+    for _ in range(4):
+        job.step()
+    job.cancel()
+    assert _snapshot(cache) == before  # still complete and stabilized with the first settings
+    assert open_map_sequence(cache).prefix == "S."
+    job = StabilizeJob(other)
+    job.run(progress=False)
+    meta = json.loads((cache / "meta.json").read_text())
+    assert stabilized_complete(meta) and meta["stabilized"]["settings"]["m"] == 2 and job.reused > 0
+    assert not list(tmp_path.glob(".cache.rebuild-*"))
+    assert StabilizeJob(other).text.startswith("all")  # in place now: nothing to do
