@@ -85,8 +85,12 @@ def adopt_estimates(clip_cache: Path, staging: Path) -> int:
     # in place: the chunks are adopted one by one, so a cache of other settings is cleared here
     # (it is the batch's own; every chunk is complete before its merge)
     target = ClipCache(clip_cache, dict(part.key), dict(part.info), beside=False)
+    part.close()
     files = {i: frame_path(staging, i) for i in part.frame_indices()}
-    moved = target.adopt(files)
+    try:
+        moved = target.adopt(files)
+    finally:
+        target.close()  # the lock goes now, also when a failed task's traceback outlives it
     shutil.rmtree(staging, ignore_errors=True)
     return moved
 
@@ -101,7 +105,11 @@ def adopt_stabilized(clip_cache: Path, staging: Path, first: int, stop: int) -> 
     if part.stabilized is None:
         raise RuntimeError(f"staging cache '{staging}' holds no stabilized record")
     files = {i: frame_path(staging, i) for i in part.frame_indices() if first <= i < stop and part.has_stabilized(i)}
+    part.close()
     target = ClipCache.open_existing(clip_cache)
-    moved = target.adopt(files, stabilized=part.stabilized["settings"])
+    try:
+        moved = target.adopt(files, stabilized=part.stabilized["settings"])
+    finally:
+        target.close()
     shutil.rmtree(staging, ignore_errors=True)
     return moved
