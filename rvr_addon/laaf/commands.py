@@ -102,7 +102,9 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         if other is not None:
             raise RvrError(f"the cache '{args.cache}' is being written by another process ({other}); wait until it "
                            "has finished, then run this command again")
-        check_cache_source(args.cache, args.input, command="autofocus")
+    for maps in (args.cache, args.depth):  # a cache (also given as --depth) of another clip is refused
+        if maps is not None:
+            check_cache_source(maps, args.input, command="autofocus")
     _check_afnet(args)
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,

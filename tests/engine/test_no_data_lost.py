@@ -295,7 +295,7 @@ def test_truncated_exr_and_cache_frames_name_the_file_and_the_fix(clip, tmp_path
 # ------------------------------------------------------------------ issue 21: a cache of another clip
 
 
-def test_a_cache_of_another_clip_is_refused_and_rvr_estimate_recomputes_it(clip, tmp_path):
+def test_a_cache_of_another_clip_is_refused_and_rvr_estimate_recomputes_it(clip, tmp_path, capsys):
     import shutil
 
     cache = tmp_path / "cache"
@@ -304,6 +304,9 @@ def test_a_cache_of_another_clip_is_refused_and_rvr_estimate_recomputes_it(clip,
     with pytest.raises(InputError, match="was made from") as info:
         RenderJob(RenderSettings(input=other, depth=cache, hdr=cache, outputs=[tmp_path / "r.mp4"]))
     assert str(clip) in str(info.value) and f"rvr estimate {other} -o {cache}" in str(info.value)
+    for source in ("--cache", "--depth"):
+        assert main(["autofocus", str(other), source, str(cache), "-o", str(tmp_path / "f.json"), "-q"]) == 2
+        assert "rvr autofocus: the cache" in capsys.readouterr().err and not (tmp_path / "f.json").exists()
     # a copy of the clip (new times, new place) is the same clip
     copy = tmp_path / "copy"
     shutil.copytree(clip, copy)
