@@ -12,6 +12,7 @@ The OS drops the lock when the process dies, so a killed run never leaves a stal
 from __future__ import annotations
 
 import json
+import logging
 import os
 import socket
 import sys
@@ -20,6 +21,8 @@ import weakref
 from pathlib import Path
 
 from ..errors import InputError, OutputError
+
+log = logging.getLogger(__name__)
 
 _WIN_OFFSET = 1 << 30  # msvcrt locks bytes: lock one far past the text so readers can read it
 _HELD: "weakref.WeakValueDictionary[str, FolderLock]" = weakref.WeakValueDictionary()
@@ -48,8 +51,10 @@ def _try_lock(fh, exclusive: bool) -> bool:
         return True
     try:
         fcntl.flock(fh.fileno(), (fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH) | fcntl.LOCK_NB)
-    except OSError:
+    except BlockingIOError:
         return False
+    except OSError as ex:  # a filesystem without locks (some network mounts): go on unlocked
+        log.warning("cannot lock '%s' (%s); concurrent runs on it are not detected", fh.name, ex)
     return True
 
 
