@@ -400,7 +400,9 @@ class EstimateJob:
         if frame is None:
             if self.done < self.total:
                 self._close()
-                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
+                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames (the file "
+                                 "may be truncated: re-copy or re-export it, or pass --stop to estimate the frames "
+                                 f"it holds); the frames estimated so far are kept: {self.kept()}")
             self._close()
             return False
         index = self.start + self.done
@@ -427,7 +429,9 @@ class EstimateJob:
         if item is None:
             self._close()
             if self.done < self.total:
-                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames")
+                raise InputError(f"{self.settings.input} ended after {self.done} of {self.total} frames (the file "
+                                 "may be truncated: re-copy or re-export it, or pass --stop to estimate the frames "
+                                 f"it holds); the frames estimated so far are kept: {self.kept()}")
             return False
         frame, d, e, _fused = item
         return self._record(self.start + self.done, (frame.shape[1], frame.shape[0]), lambda: (d, e))

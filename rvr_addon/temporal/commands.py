@@ -60,8 +60,10 @@ def cmd_stabilize(args: argparse.Namespace) -> int:
                                 outlier_scale_e=args.outlier_scale_e, flow_preset=args.flow_preset,
                                 flow_max_side=args.flow_size, cut_fraction=args.cut_fraction)
     job = StabilizeJob(StabilizeSettings(cache=args.cache, input=args.input, temporal=settings, force=args.force))
-    with on_interrupt("stabilize", lambda: f"stopped; {job.written} frames stored in {args.cache}; run the same "
-                                           "command again to continue"):
+    with on_interrupt("stabilize", lambda: f"stopped; {job.written} frames stored in {job.cache.folder}"
+                                           + (f" (the cache '{args.cache}' is unchanged until they are complete)"
+                                              if job.cache.rebuilding else "")
+                                           + "; run the same command again to continue"):
         job.run(progress=not args.quiet)
     print(f"stabilized {args.cache} ({job.text})")
     return 0

@@ -258,6 +258,11 @@ def test_a_truncated_faststart_mp4_is_reported(tmp_path, caplog):
         count = probe_clip(cut).frame_count
     assert 0 < count < 24
     assert any(str(cut) in r.getMessage() and "declares 24 frames" in r.getMessage() for r in caplog.records)
+    depth = tmp_path / "d.npy"
+    np.save(depth, np.zeros((96, 160), np.float32))
+    with pytest.raises(InputError, match="may be truncated") as info:  # frames past the cut are not invented
+        _estimate(cut, tmp_path / "cache", depth)
+    assert str(cut) in str(info.value)
 
 
 def test_track_keys_beyond_the_clip_and_extra_depth_maps_are_reported(clip, tmp_path, caplog):
