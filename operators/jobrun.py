@@ -3,14 +3,17 @@
 Every long operator (Analyze, Track, Auto Focus, Render) is a :class:`JobOperator`: it says
 how to build its job (``_prepare``: read Blender state into a plain plan, create the engine
 job, which checks its inputs) and what to do with a finished one (``_apply``: write strips,
-properties, F-curves in one step). The engine jobs share ``step() -> bool``, ``progress``
-(0..1), ``text`` and ``cancel()`` (and ``abort()`` for a failure, when they have one).
+properties, F-curves in one step). Every job is a :class:`rvr_addon.jobs.Job`: ``step() ->
+bool``, ``progress`` (0..1), ``text`` and ``cancel()`` (and ``abort()`` for a failure, when it
+has one); ``_prepare`` returning anything else is refused at once.
 
 * ``execute()`` loops ``while job.step()`` (scripts, ``blender -b``), with ``wm.progress_*``.
 * ``invoke()`` with a window adds a timer and a modal handler; ``modal()`` steps the job for
   at most ``STEP_BUDGET_S`` per ``TIMER`` event (the UI stays responsive), shows the progress
   in the panel (WindowManager properties) and the status bar, stops on Esc or when
-  ``rvr.cancel_job`` asks, and always leaves through ``_finish()``, which removes the timer.
+  ``rvr.cancel_job`` asks, and always leaves through ``_finish()``, which removes the timer and
+  resets ``wm.rvr_job_status`` to IDLE whatever happens (a cancel or an abort that raises, too):
+  a stuck RUNNING/CANCELLING status would grey out every RVR operator until the file is reloaded.
 
 Nothing touches bpy off the main thread: the job runs in the timer's chunks.
 """
@@ -21,6 +24,7 @@ import time
 import bpy
 
 from ..rvr_addon.errors import RvrError
+from ..rvr_addon.jobs import check_job, stop_job
 
 TIMER_PERIOD_S = 0.1
 STEP_BUDGET_S = 0.9 * TIMER_PERIOD_S
@@ -53,7 +57,7 @@ def _status_bar(context, text: str | None) -> None:
 
 
 def _abort(job) -> None:
-    (getattr(job, "abort", None) or job.cancel)()
+    stop_job(job, failed=True)
 
 
 class JobOperator:
@@ -74,9 +78,14 @@ class JobOperator:
     def _apply(self, context, plan, job) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def _prepare_job(self, context):
+        """``_prepare`` with its job checked against the Job protocol."""
+        plan, job = self._prepare(context)
+        return plan, check_job(job)
+
     def execute(self, context) -> set[str]:
         try:
-            plan, job = self._prepare(context)
+            plan, job = self._prepare_job(context)
         except RvrError as ex:
             self.report({"ERROR"}, str(ex))
             return {"CANCELLED"}
@@ -105,7 +114,7 @@ class JobOperator:
             self.report({"WARNING"}, "A refocus job is already running; wait for it or cancel it (Esc)")
             return {"CANCELLED"}
         try:
-            self._plan, self._job = self._prepare(context)
+            self._plan, self._job = self._prepare_job(context)
         except RvrError as ex:
             self.report({"ERROR"}, str(ex))
             return {"CANCELLED"}
@@ -117,10 +126,17 @@ class JobOperator:
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event) -> set[str]:
-        if event.type == "ESC" or context.window_manager.rvr_job_status == "CANCELLING":
-            self._job.cancel()
-            self.report({"WARNING"}, f"{self.job_label} {self._job.text}; nothing else was changed")
+        if self._job is None:  # ended already (Blender's cancel()): nothing left to run
             return self._finish(context, {"CANCELLED"})
+        if event.type == "ESC" or context.window_manager.rvr_job_status == "CANCELLING":
+            try:
+                self._job.cancel()
+                self.report({"WARNING"}, f"{self.job_label} {self._job.text}; nothing else was changed")
+            except RvrError as ex:
+                self.report({"ERROR"}, f"{self.job_label} cancelled: {ex}")
+            finally:
+                self._finish(context, {"CANCELLED"})
+            return {"CANCELLED"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         try:
@@ -129,12 +145,17 @@ class JobOperator:
                 self._apply(context, self._plan, self._job)
                 return self._finish(context, {"FINISHED"})
         except RvrError as ex:
-            _abort(self._job)
-            self.report({"ERROR"}, str(ex))
-            return self._finish(context, {"CANCELLED"})
+            try:
+                _abort(self._job)
+            finally:
+                self.report({"ERROR"}, str(ex))
+                self._finish(context, {"CANCELLED"})
+            return {"CANCELLED"}
         except BaseException:
-            _abort(self._job)
-            self._finish(context, {"CANCELLED"})
+            try:
+                _abort(self._job)
+            finally:
+                self._finish(context, {"CANCELLED"})
             raise
         wm = context.window_manager
         wm.rvr_job_progress = 100.0 * self._job.progress
@@ -144,18 +165,22 @@ class JobOperator:
 
     def _finish(self, context, result: set[str]) -> set[str]:
         """The one exit of the modal run: remove the timer, reset the status and the status bar."""
-        if self._timer is not None:
-            context.window_manager.event_timer_remove(self._timer)
-            self._timer = None
-        text = f"{self.job_label}: {self._job.text}" if self._job is not None else ""
-        set_status(context, "IDLE", text, 0.0)
-        _status_bar(context, None)
-        self._job = None
-        self._plan = None
+        try:
+            if self._timer is not None:
+                timer, self._timer = self._timer, None
+                context.window_manager.event_timer_remove(timer)
+        finally:
+            text = f"{self.job_label}: {getattr(self._job, 'text', '')}" if self._job is not None else ""
+            set_status(context, "IDLE", text, 0.0)
+            self._job = None
+            self._plan = None
+            _status_bar(context, None)
         return result
 
     def cancel(self, context) -> None:
         """Blender ends the modal run (file load, window closed): stop the job, clean up."""
-        if self._job is not None:
-            self._job.cancel()
-        self._finish(context, {"CANCELLED"})
+        try:
+            if self._job is not None:
+                self._job.cancel()
+        finally:
+            self._finish(context, {"CANCELLED"})

@@ -200,7 +200,10 @@ class AnalyzeJob:
         return text
 
     def cancel(self) -> None:
-        """Stop; the frames finished so far stay valid in the cache."""
+        """Stop; the frames finished so far stay valid in the cache. After the end (or a cancel)
+        it does nothing."""
+        if self.phase == "done" or self.cancelled:
+            return
         job = self.stabilize if self.phase == "stabilize" else self.estimate
         job.cancel()
         self.cancelled = True

@@ -342,7 +342,9 @@ class RenderJob:
         self._finished = True
 
     def cancel(self) -> None:
-        """User cancel: same as abort, with a status text."""
+        """User cancel: same as abort, with a status text; after the end (or a failure) it does nothing."""
+        if self._finished:
+            return
         self.abort()
         self.text = f"cancelled after {self.done} of {self.total} frames"
 

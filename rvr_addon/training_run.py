@@ -307,6 +307,14 @@ class TrainingRun:
         """True once the run reached its iteration count or was cancelled."""
         return self.iteration >= self.settings.iterations or self._cancelled
 
+    @property
+    def text(self) -> str:
+        """One status line (the Job protocol, ``rvr_addon.jobs``): iterations done, or how it ended."""
+        n = self.settings.iterations
+        if self._cancelled:
+            return f"cancelled at iteration {self.iteration} of {n}; checkpoint saved in {self.run_dir}"
+        return f"iteration {self.iteration} of {n}"
+
     def _backward(self) -> tuple[dict[str, float], dict[str, str]]:
         """Draw a batch, compute its loss and gradients (subclass; RvrError on a non-finite loss).
         Returns the float parts for the log (``total`` among them) and extra text columns of the row."""
@@ -358,7 +366,10 @@ class TrainingRun:
         self.close()
 
     def cancel(self) -> None:
-        """Stop (Ctrl-C, Esc): save a checkpoint so ``--resume`` continues from here."""
+        """Stop (Ctrl-C, Esc): save a checkpoint so ``--resume`` continues from here. After the
+        end (or a cancel) it does nothing: the final checkpoint and weights stay as written."""
+        if self._finished or self._cancelled:
+            return
         self._cancelled = True
         self.save_checkpoint()
         self.plot()

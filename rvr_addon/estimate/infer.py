@@ -471,7 +471,10 @@ class EstimateJob:
 
     def cancel(self) -> None:
         """Stop; frames written so far stay valid in the cache (meta.json is flushed). A cache
-        of other settings at the output stays as it was (the new frames wait beside it)."""
+        of other settings at the output stays as it was (the new frames wait beside it). After
+        the end it does nothing."""
+        if self._finished:
+            return
         self._close()
         self.text = f"cancelled after {self.done} of {self.total} frames; " + self.kept()
 

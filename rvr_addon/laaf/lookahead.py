@@ -574,6 +574,17 @@ class AutofocusJob:
                                {"raw": self.raw, "held": self.held}, metrics, composed, self.clip, self.start,
                                settings, seconds, boxes)
 
+    def cancel(self) -> None:
+        """Stop (Esc, Ctrl-C; any time, idempotent): the decoder is closed and no result is made.
+        The job writes nothing itself, so nothing changes; after the end the result stays."""
+        frames, self._frames = self._frames, None
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
+        if not self._finished:
+            self._finished = True
+            self.text = f"cancelled after {self._k} of {self.n} frames"
+
     def run(self, progress: bool = True) -> AutofocusResult:
         """Run to the end (tqdm progress bar when ``progress``); returns the result."""
         from tqdm import tqdm

@@ -185,7 +185,9 @@ class StabilizeJob:
                      + (f"; the window restarted {cuts} time(s) (scene cuts / size changes, see the log)" if cuts else ""))
 
     def cancel(self) -> None:
-        """Stop; frames stored so far stay valid (meta.json is flushed)."""
+        """Stop; frames stored so far stay valid (meta.json is flushed). After the end it does nothing."""
+        if self._finished:
+            return
         self._close()
         self.text = f"cancelled after {self.written} stabilized frames"
 
