@@ -58,6 +58,7 @@ as a new source: recomputed, never wrongly trusted).
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import json
 import logging
@@ -131,6 +132,11 @@ def _is_cache_entry(name: str) -> bool:
     return name == "meta.json" or name.startswith(".") or _FRAME_RE.match(name) is not None
 
 
+def _rebuilds(target: Path) -> list[Path]:
+    """The folders built beside ``target`` (:func:`rebuild_folder`)."""
+    return list(target.parent.glob(f".{glob.escape(target.name)}{REBUILD_TAG}{'?' * 12}"))
+
+
 def recover_swap(target: Path) -> None:
     """Finish a swap (:meth:`ClipCache.commit`) a crash interrupted: a missing ``target`` gets the
     rebuilt folder that was being put in place (else the old one back); leftovers are removed."""
@@ -139,9 +145,9 @@ def recover_swap(target: Path) -> None:
     parent = target.parent
     if not parent.is_dir():
         return
-    asides = sorted(parent.glob(f".{target.name}.*.old"), key=lambda p: p.stat().st_mtime)
+    asides = sorted(parent.glob(f".{glob.escape(target.name)}.{'?' * 8}.old"), key=lambda p: p.stat().st_mtime)
     if not target.exists():
-        for d in parent.glob(f".{target.name}{REBUILD_TAG}*"):
+        for d in _rebuilds(target):
             meta, _ = _read_meta(d)
             if meta is not None and meta.get("committing"):
                 d.replace(target)
@@ -329,7 +335,7 @@ class ClipCache:
         """Remove partial rebuilds of other keys beside the target (only the newest key is kept)."""
         import shutil
 
-        for d in self.target.parent.glob(f".{self.target.name}{REBUILD_TAG}*"):
+        for d in _rebuilds(self.target):
             if d != self.folder and d.is_dir():
                 shutil.rmtree(d, ignore_errors=True)
                 folder_lock.lock_path(d).unlink(missing_ok=True)
