@@ -5,10 +5,12 @@ TIFF, NPY or NPZ files, or one NPY/NPZ stack of N maps, shape (N, H, W) (HDR: al
 (N, H, W, 3)), read as frames 0..N-1 (a 3-D array whose last axis is 1, 3 or 4 is one map
 with channels). A per-clip cache folder (``rvr estimate``) is read as recorded in its
 meta.json: a frame whose file is not the one recorded is refused, and so is a cache that
-another process is writing (:mod:`.lock`). Values are `raw * scale + offset`, with 8/16-bit images first
-normalised to [0, 1]. Disparity values are in px of blur radius at aperture 1 at the clip's
-native width, whatever the map's own resolution: resampling a map to the frame size does NOT
-rescale its values (scale them with `scale=` if your maps were made at another width).
+another process is writing (:mod:`.lock`).
+
+Values are `raw * scale + offset`, with 8/16-bit images first normalised to [0, 1].
+Disparity values are in px of blur radius at aperture 1 at the clip's native width, whatever
+the map's own resolution: resampling a map to the frame size does NOT rescale its values
+(scale them with `scale=` if your maps were made at another width).
 """
 from __future__ import annotations
 
@@ -196,7 +198,9 @@ class MapSequence:
         self.static = static
         self.prefix = ""  # "S." reads a cache's stabilized channels (see open_map_sequence)
         self.stack: np.ndarray | None = None  # an (N, H, W) NPY/NPZ stack (memory-mapped NPY)
-        self.cache: dict | None = None  # a cache folder: {"folder", "fix", "files": {path: (size, ino, mtime)}}
+        self.cache: dict | None = None
+        """A cache folder's record: {"folder", "fix" (the rvr estimate command), "files": {path:
+        (recorded sizes, (st_ino, st_mtime_ns) when opened, or None if the size was already wrong)}}."""
         self._warned_size = False
         self._warned_nonfinite = False
         self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
