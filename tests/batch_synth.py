@@ -135,6 +135,6 @@ def chunked_laaf(settings, folder: Path, n: int, chunk: int):
 
     files = []
     for a, b in chunk_ranges(n, chunk):
-        files.append(folder / f"analysis_{a:06d}.pkl")
+        files.append(folder / f"analysis_{a:06d}.npz")
         assert write_measurements(files[-1], {"range": (a, b)}, measure_range(settings, a, b)) == b - a
     return AutofocusJob(settings, frames=read_measurements(files)).run(progress=False)

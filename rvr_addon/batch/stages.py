@@ -207,7 +207,7 @@ def focus_work_path(plan: ClipPlan) -> Path:
 
 def analysis_path(plan: ClipPlan, a: int, b: int) -> Path:
     """The LAAF measurements of frames [a, b) (deleted once the focus file is written)."""
-    return plan.work / f"analysis_{a:06d}_{b:06d}.pkl"
+    return plan.work / f"analysis_{a:06d}_{b:06d}.npz"
 
 
 def autofocus_settings(plan: ClipPlan, settings: BatchSettings):
@@ -222,7 +222,8 @@ def autofocus_settings(plan: ClipPlan, settings: BatchSettings):
 
 def laaf_measure(plan: ClipPlan, settings: BatchSettings, a: int, b: int, merged: dict) -> dict:
     """The per-frame part of LAAF on frames [a, b) (detectors, frames at the analysis size,
-    disparity) into work/analysis_*.pkl; kept when complete from an earlier run."""
+    disparity) into work/analysis_*.npz (data only, never unpickled); kept when complete from an
+    earlier run, measured again when the file there is not a complete one (logged)."""
     from ..laaf.analysis import measure_range, read_header, write_measurements
 
     def run():

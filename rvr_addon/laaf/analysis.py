@@ -20,15 +20,15 @@ NFT to the next (however far apart: no bounded overlap reproduces it), the pulls
 paths run the same ``measure`` on the same arrays and the same ``ingest`` in the same order,
 a chunked run gives the single run's focus track and keys exactly (``tests/engine/test_batch.py``).
 
-Measurement files are pickle streams (a header, then one :class:`FrameMeasurement` per frame),
-written to a temporary name and renamed; they are the batch's own work files (never load one
-from an untrusted source). About 0.4-0.7 MB per frame at 320x180 (frame, disparity, maps).
+Measurement files are data-only archives (``.npz`` of JSON + arrays, :mod:`..io.datafile`; a
+header, then one :class:`FrameMeasurement` per frame), written to a temporary name and renamed.
+Nothing in them is unpickled: a file planted in the work folder cannot run code, it is only
+refused (and measured again by ``rvr batch``). About 0.4-0.7 MB per frame at 320x180.
 """
 from __future__ import annotations
 
 import logging
 import os
-import pickle
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -49,7 +49,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-ANALYSIS_FORMAT = "rvr-laaf-analysis/1"
+ANALYSIS_FORMAT = "rvr-laaf-analysis/2"
+"""/2: data-only .npz archives (/1 were pickle streams, never read any more)."""
 
 
 @dataclass
@@ -274,49 +275,86 @@ def check_frame_size(rgb: np.ndarray, clip: ClipInfo, k: int, source) -> None:
 
 
 def write_measurements(path: Path, header: dict, frames: Iterable[FrameMeasurement]) -> int:
-    """Stream ``frames`` into a measurement file (temp name, renamed when complete); returns
-    how many were written."""
+    """Stream ``frames`` into a measurement file (a data-only archive under a temp name, renamed
+    when complete); returns how many were written."""
+    from ..io.datafile import DataWriter
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_sibling(path, ".tmp")
     count = 0
     try:
-        with open(tmp, "wb") as f:
-            pickle.dump({"format": ANALYSIS_FORMAT, **header}, f, protocol=pickle.HIGHEST_PROTOCOL)
+        with DataWriter(tmp) as out:
             for m in frames:
-                pickle.dump(m, f, protocol=pickle.HIGHEST_PROTOCOL)
+                out.put(f"f{count}", {"t": int(m.t), "rgb": m.rgb, "disparity": m.disparity,
+                                      "features": m.features, "seconds": m.seconds})
                 count += 1
+            out.put("header", {"format": ANALYSIS_FORMAT, **header, "frames": count})
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
     return count
 
 
-def read_header(path: Path) -> dict | None:
-    """The header of a measurement file, None if it is missing or not one."""
+def _open(path: Path):
+    """(reader, header) of a measurement file; DataFileError when it is not a complete one."""
+    from ..io.datafile import DataFileError, DataReader
+
+    reader = DataReader(path, what=f"LAAF measurement file ({ANALYSIS_FORMAT})")
     try:
-        with open(path, "rb") as f:
-            header = pickle.load(f)
-    except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ValueError):
+        header = reader.get("header")
+        ok = (isinstance(header, dict) and header.get("format") == ANALYSIS_FORMAT
+              and isinstance(header.get("range"), (list, tuple)) and len(header["range"]) == 2
+              and header.get("frames") == header["range"][1] - header["range"][0])
+        if not ok:
+            raise DataFileError(f"'{path}' is not a LAAF measurement file ({ANALYSIS_FORMAT}): its header is "
+                                f"{str(header)[:120]}")
+    except BaseException:
+        reader.close()
+        raise
+    return reader, header
+
+
+def read_header(path: Path) -> dict | None:
+    """The header of a complete measurement file, None if it is missing or not one (logged when
+    a file is there but is not one: e.g. planted, truncated, or of an older format)."""
+    from ..io.datafile import DataFileError
+
+    path = Path(path)
+    if not path.is_file():
         return None
-    return header if isinstance(header, dict) and header.get("format") == ANALYSIS_FORMAT else None
+    try:
+        reader, header = _open(path)
+    except DataFileError as ex:
+        log.warning("%s; it is not used (rvr batch measures these frames again)", ex)
+        return None
+    reader.close()
+    return header
 
 
 def read_measurements(paths: Iterable[Path]) -> Iterator[FrameMeasurement]:
     """The frames of measurement files, file after file (one frame in memory at a time).
     Raises InputError naming a file that is not a complete measurement file."""
+    from ..io.datafile import DataFileError
+
     for path in paths:
-        header = read_header(path)
-        if header is None:
-            raise InputError(f"LAAF measurement file '{path}' is missing or not one ({ANALYSIS_FORMAT}); delete it "
-                             "and re-run (rvr batch measures missing chunks again)")
-        a, b = header["range"]
-        with open(path, "rb") as f:
-            pickle.load(f)
-            for t in range(a, b):
+        try:
+            reader, header = _open(Path(path))
+        except DataFileError as ex:
+            raise InputError(f"{ex}; delete it and re-run (rvr batch measures missing chunks again)") from None
+        a, b = (int(v) for v in header["range"])
+        with reader:
+            for k, t in enumerate(range(a, b)):
                 try:
-                    m = pickle.load(f)
-                except (EOFError, pickle.UnpicklingError) as ex:
-                    raise InputError(f"LAAF measurement file '{path}' ends before frame {t} of {a}..{b - 1} "
-                                     f"({ex or 'truncated'}); delete it and re-run the analysis") from None
+                    item = reader.get(f"f{k}")
+                    m = FrameMeasurement(int(item["t"]), item["rgb"], item["disparity"], item["features"],
+                                         item["seconds"])
+                    if not isinstance(m.rgb, np.ndarray) or not isinstance(m.features, dict):
+                        raise TypeError("rgb is not an array or features not a mapping")
+                except DataFileError as ex:
+                    raise InputError(f"LAAF measurement file '{path}' has no complete frame {t} of {a}..{b - 1} "
+                                     f"({ex}); delete it and re-run the analysis") from None
+                except (KeyError, TypeError, ValueError) as ex:
+                    raise InputError(f"LAAF measurement file '{path}': frame {t} is not a measurement ({ex}); "
+                                     "delete it and re-run the analysis") from None
                 yield m
