@@ -550,17 +550,27 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``rvr`` console script; returns the exit status."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     args = build_parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except RvrError as ex:
-        print(f"rvr: error: {ex}", file=sys.stderr)
-        return 2
-    except Interrupted as ex:
-        print(ex, file=sys.stderr)
-        return 130
-    except KeyboardInterrupt:
-        print("rvr: cancelled; partial outputs removed", file=sys.stderr)
-        return 130
+    from .interrupts import exit_status, sigterm_as_interrupt, terminated
+
+    with sigterm_as_interrupt():  # SIGTERM cleans up like Ctrl-C (temp files, ffmpeg children); exit 143
+        try:
+            return args.func(args)
+        except RvrError as ex:
+            print(f"rvr: error: {ex}", file=sys.stderr)
+            return 2
+        except Interrupted as ex:
+            print(f"{ex}{' (SIGTERM)' if terminated() else ''}", file=sys.stderr)
+            return exit_status()
+        except KeyboardInterrupt:
+            how = "terminated (SIGTERM)" if terminated() else "cancelled"
+            print(f"rvr: {how}; partial outputs removed", file=sys.stderr)
+            return exit_status()
+        except OSError as ex:  # a write path without its own message (disk full, read-only): no traceback
+            log.debug("rvr %s failed", getattr(args, "command", ""), exc_info=True)
+            name = f" '{ex.filename}'" if getattr(ex, "filename", None) else ""
+            print(f"rvr: error:{name} {ex.strerror or ex}; check that the output location is writable and has free "
+                  "space (or choose another one); earlier results are kept", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

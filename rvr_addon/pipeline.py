@@ -225,6 +225,7 @@ class RenderJob:
         self.done = 0
         self.text = f"rendering {self.total} frames of {self.clip.path.name}"
         self._frames: Iterator[np.ndarray] | None = None
+        self._decoder = None  # the clip's frame generator (its ffmpeg child ends when it is closed)
         self._writers: list = []
         self._focus: np.ndarray | None = None
         self._aperture: np.ndarray | None = None
@@ -256,7 +257,7 @@ class RenderJob:
                             "pull (then --track FOCUS.json), `rvr refocus` does everything", s.input, focus)
             self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total,
                                                         start=track_start)
-        self._frames = iter_frames(s.input, start=self.start, stop=self.stop)
+        self._frames = self._decoder = iter_frames(s.input, start=self.start, stop=self.stop)
         if self.frame_list is not None:
             self._frames = repeat_frames(self._frames, self.start, self.frame_list)
         keep_audio = s.keep_audio and self.clip.has_audio and self.frame_list is None
@@ -324,7 +325,13 @@ class RenderJob:
                     srgb8 = to_uint8(linear_to_srgb(linear))
                 w.write(srgb8)
 
+    def _stop_decoder(self) -> None:
+        decoder, self._decoder = self._decoder, None
+        if decoder is not None:
+            decoder.close()
+
     def _close(self) -> None:
+        self._stop_decoder()
         for w in self._writers:
             w.close()
         self._writers = []
@@ -332,7 +339,12 @@ class RenderJob:
         self.text = f"rendered {self.done} frames"
 
     def abort(self) -> None:
-        """Stop and remove partial outputs; earlier results at the output paths survive."""
+        """Stop and remove partial outputs (the writers end their ffmpeg and delete their temp
+        files); earlier results at the output paths survive."""
+        try:
+            self._stop_decoder()
+        except Exception:  # noqa: BLE001 - the writers must still be cleaned up
+            log.exception("closing the decoder of %s failed", self.settings.input)
         for w in self._writers:
             try:
                 w.abort()
@@ -353,6 +365,10 @@ class RenderJob:
         from tqdm import tqdm
 
         with tqdm(total=self.total, unit="frame", disable=not progress, desc="render") as bar:
-            while self.step():
-                bar.update(1)
+            try:
+                while self.step():
+                    bar.update(1)
+            except BaseException:  # Ctrl-C / SIGTERM between two steps too: no temp file, no ffmpeg left
+                self.abort()
+                raise
             bar.update(self.total - bar.n)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, OutputError
+from ..errors import InputError, OutputError, output_error
 from .paths import temp_sibling
 from .video import ffmpeg_exe, probe_clip
 
@@ -105,6 +105,7 @@ class VideoWriter(_AtomicWriter):
             raise OutputError(f"Cannot create the folder of '{self.path}': {ex}. Choose a writable location.") from ex
         self._tmp = temp_sibling(self.path, ".tmp.mp4")
         self._log = tempfile.TemporaryFile()
+        self._said: str | None = None
         cmd = self._command(audio_from, int(crf), float(audio_start))
         try:
             self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=self._log)
@@ -148,13 +149,22 @@ class VideoWriter(_AtomicWriter):
         try:
             self._proc.stdin.write(np.ascontiguousarray(frame).data)
         except (BrokenPipeError, OSError) as ex:
-            self.abort()
-            raise OutputError(f"ffmpeg stopped while writing '{self.path}': {self._stderr()}") from ex
+            self.abort()  # waits for ffmpeg, keeps what it said, removes the temp file
+            raise OutputError(f"ffmpeg stopped after {self.frames_written} frames while writing '{self.path}'; "
+                              f"nothing was saved (an earlier file there is kept). Check that the folder is "
+                              f"writable and the disk has space, and that the audio source can be read "
+                              f"(or render without audio). ffmpeg said:\n{self._stderr()}") from ex
         self.frames_written += 1
 
     def _stderr(self) -> str:
-        self._log.seek(0)
-        return _tail(self._log.read())
+        """The tail of what ffmpeg printed (read once, before the log is closed; kept after)."""
+        if self._said is None:
+            try:
+                self._log.seek(0)
+                self._said = _tail(self._log.read())
+            except (ValueError, OSError) as ex:  # the log is closed or unreadable
+                return f"(ffmpeg's log could not be read: {ex})"
+        return self._said
 
     def close(self) -> None:
         """Finish encoding and move the file onto `path`. Raises OutputError if ffmpeg failed."""
@@ -170,6 +180,7 @@ class VideoWriter(_AtomicWriter):
         code = self._proc.wait()
         self._closed = True
         try:
+            self._stderr()
             if code != 0:
                 raise OutputError(
                     f"ffmpeg failed ({code}) writing '{self.path}'; nothing was saved. ffmpeg said:\n{self._stderr()}"
@@ -194,6 +205,7 @@ class VideoWriter(_AtomicWriter):
         except (BrokenPipeError, OSError):
             pass
         self._proc.wait()
+        self._stderr()  # read before the log goes: a caller's message quotes it
         self._log.close()
         _unlink(self._tmp)
 
@@ -250,15 +262,19 @@ class ImageSequenceWriter(_AtomicWriter):
         name = self.pattern % (self.start + self.frames_written)
         self._check(frame, name)
         target = self._tmp / name
-        if self.suffix == ".exr":
-            from .exr import write_exr
+        try:
+            if self.suffix == ".exr":
+                from .exr import write_exr
 
-            write_exr(target, {"R": frame[:, :, 0], "G": frame[:, :, 1], "B": frame[:, :, 2]})
-        else:
-            import cv2
+                write_exr(target, {"R": frame[:, :, 0], "G": frame[:, :, 1], "B": frame[:, :, 2]})
+            else:
+                import cv2
 
-            if not cv2.imwrite(str(target), np.ascontiguousarray(frame[:, :, ::-1])):
-                raise OutputError(f"Cannot write frame '{self.directory / name}'; check free disk space.")
+                if not cv2.imwrite(str(target), np.ascontiguousarray(frame[:, :, ::-1])):
+                    raise OutputError(f"Cannot write frame '{self.directory / name}'; check free disk space and that "
+                                      "the folder is writable (nothing was saved, an earlier folder there is kept).")
+        except OSError as ex:
+            raise output_error(self.directory / name, ex, "write frame") from ex
         self.frames_written += 1
         return self.directory / name
 

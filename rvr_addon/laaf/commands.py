@@ -117,7 +117,12 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         result = job.run(progress=not args.quiet)
     write_focus_file(args.output, result)
     if args.plot:
-        plot_focus(args.plot, result)
+        from ..errors import output_error
+
+        try:
+            plot_focus(args.plot, result)
+        except OSError as ex:
+            raise output_error(args.plot, ex, "write the plot") from ex
         print(f"wrote {args.plot}")
     nfts = ", ".join(f"{n.t + result.start}({n.source})" for n in result.nfts)
     note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""

@@ -60,15 +60,24 @@ def focus_document(result) -> dict:
 
 
 def write_focus_file(path: str | Path, result) -> Path:
-    """Write the focus file atomically (temp file + rename); returns the path."""
+    """Write the focus file atomically (temp file + rename); returns the path. Raises
+    OutputError naming the file and the fix when it cannot be written (read-only, disk full)."""
+    from ..errors import output_error
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(focus_document(result), indent=1, default=_default)
     tmp = temp_sibling(path, ".json")
     try:
-        tmp.write_text(json.dumps(focus_document(result), indent=1, default=_default))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(text)
         os.replace(tmp, path)
+    except OSError as ex:
+        raise output_error(path, ex, "write the focus file") from ex
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
     return path
 
 
