@@ -14,7 +14,11 @@ Per frame, in metric inverse depth ``q`` (1/m, larger = nearer; :mod:`.cues`):
    people alone (a still camera) only b is fitted (on the people) and a keeps the lens's
    ``-1 / K``: the network's relief survives, placed at the people's distance. The fit is
    smoothed over frames (exponential, ``fit_memory``) so a frame's fit does not flicker.
-   Without any geometric cue the network's own D is used, already in DESIGN units.
+   Without any geometric cue the network's own D is used, already in DESIGN units. Where
+   parallax is trusted, the fitted network is then corrected locally: the parallax's difference
+   to it is spread edge-aware over the frame (``residual_lambda``) and added, so away from the
+   trusted pixels the network keeps its relief but sits where the geometry nearby puts it (a
+   global fit alone leaves each region's offset wrong; HoloLens office, 60 frames: 0.58 -> 0.51).
 3. **Behind the people.** Unless parallax says otherwise, what surrounds a person is no nearer
    than ``behind_ratio`` times that person's inverse depth (an interview's backdrop must not
    come out at the face's depth): a ceiling on q that fades out ``behind_reach`` of the frame
@@ -57,6 +61,10 @@ class FusionSettings:
     behind_reach: float = 0.3
     fit_memory: float = 0.8
     """Weight of the previous frames' network fit (0 = fit every frame on its own)."""
+    residual_lambda: float = 1000.0
+    """FGS smoothness of the network's local correction by parallax: where parallax is trusted,
+    its difference to the fitted network is spread edge-aware over the frame and added to the
+    network (its relief kept, its offsets corrected by the geometry nearby); 0 = off."""
 
     def describe(self) -> dict:
         """JSON-able settings (part of the cache key)."""
@@ -257,6 +265,14 @@ class DepthFuser:
         if fit is None:  # the network's D taken as DESIGN units, as on a frame without cues
             fit = (-1.0 / self.K, self.q_ref)
         q_net = (fit[0] * d_net + fit[1]).astype(np.float32)
+        if par is not None and s.residual_lambda > 0 and (par.confidence > 0.3).any():
+            # the network corrected locally by the parallax around it (its relief kept); people are
+            # not used here: their matte is imposed below, and spreading their offset would pull the
+            # background toward them
+            trusted = np.isfinite(par.inverse_depth) & (par.confidence > 0.3)
+            residual = np.where(trusted, par.inverse_depth - q_net, np.nan).astype(np.float32)
+            spread, _ = smooth_fill(guide, residual, par.confidence, s.residual_lambda, s.smooth_sigma_color)
+            q_net = (q_net + spread).astype(np.float32)
         if people is not None:
             ceiling, weight = self._behind_people(people, d_net.shape)
             if par is not None:  # parallax overrules the assumption where it is trusted
