@@ -257,6 +257,7 @@ class RenderJob:
                             "pull (then --track FOCUS.json), `rvr refocus` does everything", s.input, focus)
             self._focus, self._aperture = resolve_track(constant_track(focus, s.aperture), self.total,
                                                         start=track_start)
+        self._warn_cost(first_d)
         self._frames = self._decoder = iter_frames(s.input, start=self.start, stop=self.stop)
         if self.frame_list is not None:
             self._frames = repeat_frames(self._frames, self.start, self.frame_list)
@@ -270,6 +271,30 @@ class RenderJob:
             else:
                 w = sequence_writer(out, start=self.start + 1 if self.frame_list is None else 1)
             self._writers.append(w)
+
+    def _warn_cost(self, first_d: np.ndarray) -> None:
+        """Log what a frame will cost and how to make it cheaper (:mod:`.render.cost`) when that is
+        a lot: the work counted on the first frame's disparity at the largest aperture of the track."""
+        from .render.cost import cost_warning
+
+        finite = first_d[np.isfinite(first_d)]
+        if not finite.size:
+            return
+        sc = self.settings.scale
+        lo, hi = float(finite.min()), float(finite.max())
+        focus, aperture = np.asarray(self._focus, np.float64), np.abs(np.asarray(self._aperture, np.float64))
+        radius = float(np.max(aperture * np.maximum(np.abs(hi - focus), np.abs(lo - focus)))) * sc
+        w, h = self.output_size
+        disparity = first_d
+        if (disparity.shape[1], disparity.shape[0]) != (w, h):
+            import cv2
+
+            disparity = cv2.resize(first_d, (w, h), interpolation=cv2.INTER_LINEAR)
+        work = self.renderer.work_px(disparity * sc, float(focus[0]) * sc, float(aperture.max()))
+        message = cost_warning(w, h, radius, self.total, max_step=self.renderer.max_step, scale=sc, work_px=work,
+                               what=f"rendering {self.clip.path.name}")
+        if message:
+            log.warning("%s", message)
 
     def step(self) -> bool:
         """Render and write the next frame; returns False once everything is written."""

@@ -40,6 +40,8 @@ from .model import (
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (half-open, px)
 PUSH_PULL_NUMPY_BELOW = 16
+SCALAR_LIKE_ROWS = 4
+"""OpenCV's Python bindings take a 2-D array of shape (n, 1) with n <= this for a scalar."""
 """Push-pull levels with a side below this many px are done in plain numpy (they are tiny, and
 OpenCV's Python bindings read an (n <= 4, 1) array as a scalar)."""
 
@@ -81,6 +83,13 @@ class FastRenderer:
         check_frame_inputs(radiance, disparity, focus, aperture)
         if aperture == 0:
             return radiance.astype(np.float32, copy=True)
+        if disparity.shape[1] == 1 and disparity.shape[0] <= SCALAR_LIKE_ROWS:
+            # OpenCV's Python bindings read an (n <= 4, 1) array as a scalar (1x1, 4x1 frames crashed
+            # in matte_normaliser_cv): a frame of at most 4 px is rendered exactly by the reference
+            from .reference import render_reference
+
+            return render_reference(radiance, disparity, focus, aperture, spec=self.spec, plan=plan,
+                                    naive=self.naive, max_step=self.max_step, min_layers=self.min_layers)
         s = signed_radius(disparity.astype(np.float32, copy=False), np.float32(focus), np.float32(aperture))
         if plan is None:
             plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
@@ -209,6 +218,30 @@ class FastRenderer:
             got = (ids.astype(np.int64), ty, tx)
             self._tiles[key] = got
         return got
+
+    def work_px(self, disparity: np.ndarray, focus: float, aperture: float) -> int:
+        """How much work a frame is: the pixels of every layer's boxes (active tiles grown by the
+        blur's footprint) that :meth:`render_linear` blurs and composites, summed over the layers.
+        Cheap next to a render; :mod:`.cost` turns it into seconds.
+
+        disparity: (H, W) float32, DESIGN units. focus: focus disparity. aperture: scale >= 0.
+        """
+        if aperture == 0:
+            return int(disparity.size)
+        s = signed_radius(disparity.astype(np.float32, copy=False), np.float32(focus), np.float32(aperture))
+        s = np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0)
+        plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
+        j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
+        u = np.clip(s / np.float32(plan.step), j_lo, j_hi).astype(np.float32)
+        active = self._active_layers(u, j_lo, j_hi)
+        total = 0
+        for j in plan.indices:
+            tiles = active[int(j) - j_lo]
+            if tiles.any():
+                half = int(np.ceil(abs(float(j) * plan.step))) + 1
+                for (y0, y1, x0, x1), _ in layer_boxes(tiles, self.tile, half, u.shape):
+                    total += (y1 - y0) * (x1 - x0)
+        return int(total)
 
     def _active_layers(self, u: np.ndarray, j_lo: int, j_hi: int) -> np.ndarray:
         """(L, ty, tx) bool: layer j_lo + l has a non-zero matte somewhere in the tile.
