@@ -204,3 +204,17 @@ def test_a_truncated_source_with_audio_renders_or_fails_cleanly(tmp_path, maps, 
         if rc == 2:
             assert str(cut) in err or str(out) in err
     assert _leftovers(out_dir) == []
+
+
+def test_a_stray_os_error_in_any_command_is_a_message_not_a_traceback(clip, maps, tmp_path, capsys, monkeypatch):
+    """The safety net in main(): a write path without its own message still ends in exit 2."""
+    from rvr_addon.pipeline import RenderJob
+
+    target = tmp_path / "out" / "r.mp4"
+
+    def full(self, progress=True):
+        raise OSError(errno.ENOSPC, "No space left on device", str(target))
+
+    monkeypatch.setattr(RenderJob, "run", full)
+    _fails_cleanly(capsys, ["render", str(clip), "--depth", str(maps), "--focus", "0", "-o", str(target), "-q"],
+                         str(target), "No space left on device", "free space")
