@@ -217,4 +217,4 @@ def test_a_stray_os_error_in_any_command_is_a_message_not_a_traceback(clip, maps
 
     monkeypatch.setattr(RenderJob, "run", full)
     _fails_cleanly(capsys, ["render", str(clip), "--depth", str(maps), "--focus", "0", "-o", str(target), "-q"],
-                         str(target), "No space left on device", "free space")
+                   str(target), "No space left on device", "free space")
