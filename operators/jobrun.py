@@ -120,9 +120,16 @@ class JobOperator:
             return {"CANCELLED"}
         wm = context.window_manager
         set_status(context, "RUNNING", f"{self.job_label}: {self._job.text}", 0.0)
-        _status_bar(context, f"{self.job_label}: {self._job.text}  (Esc to cancel)")
-        self._timer = wm.event_timer_add(TIMER_PERIOD_S, window=context.window)
-        wm.modal_handler_add(self)
+        try:
+            _status_bar(context, f"{self.job_label}: {self._job.text}  (Esc to cancel)")
+            self._timer = wm.event_timer_add(TIMER_PERIOD_S, window=context.window)
+            wm.modal_handler_add(self)
+        except BaseException:  # no modal run after all: stop the job, leave the status IDLE
+            try:
+                self._job.cancel()
+            finally:
+                self._finish(context, {"CANCELLED"})
+            raise
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event) -> set[str]:
