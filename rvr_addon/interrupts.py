@@ -22,11 +22,17 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM arrived; raised in the main thread like Ctrl-C's KeyboardInterrupt."""
 
 
+def raise_terminated() -> None:
+    """Record that SIGTERM arrived and raise :class:`Terminated` (for code that held the signal
+    back, e.g. around a checkpoint write, and now acts on it)."""
+    _state["terminated"] = True
+    raise Terminated("terminated (SIGTERM)")
+
+
 def _on_sigterm(signum, frame) -> None:
     if _state["terminated"]:
         return  # already stopping: let the cleanup finish
-    _state["terminated"] = True
-    raise Terminated("terminated (SIGTERM)")
+    raise_terminated()
 
 
 def terminated() -> bool:

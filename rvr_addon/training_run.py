@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from .errors import InputError
+from .interrupts import raise_terminated, sigterm_as_interrupt
 from .io.paths import temp_sibling
 
 log = logging.getLogger(__name__)
@@ -54,27 +55,20 @@ def deferred_interrupt() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    if signal.SIGTERM in caught:
+        raise_terminated()  # a KeyboardInterrupt that `rvr` reports with exit status 143
     if caught:
         raise KeyboardInterrupt
-
-
-def _terminate_as_interrupt(signum, frame) -> None:
-    raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
 def terminate_as_interrupt() -> Iterator[None]:
     """Within the block, SIGTERM (a cluster's scheduler, ``kill``) stops like Ctrl-C: it raises
-    KeyboardInterrupt, so the run saves its checkpoint. (A job started in the background by a
-    non-interactive shell ignores SIGINT; SIGTERM still reaches it.) Main thread only."""
-    if threading.current_thread() is not threading.main_thread():
+    KeyboardInterrupt (:class:`~.interrupts.Terminated`), so the run saves its checkpoint. (A job
+    started in the background by a non-interactive shell ignores SIGINT; SIGTERM still reaches
+    it.) Main thread only."""
+    with sigterm_as_interrupt():
         yield
-        return
-    previous = signal.signal(signal.SIGTERM, _terminate_as_interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def current_rss_mb() -> float:

@@ -52,6 +52,18 @@ def test_sigterm_raises_terminated_once_and_gives_143():
         assert not terminated() and exit_status() == 130
 
 
+def test_a_sigterm_held_back_by_a_training_step_is_still_a_sigterm():
+    from rvr_addon.training_run import deferred_interrupt, terminate_as_interrupt
+
+    with sigterm_as_interrupt(), terminate_as_interrupt():
+        done = []
+        with pytest.raises(Terminated):
+            with deferred_interrupt():
+                os.kill(os.getpid(), signal.SIGTERM)
+                done.append("update")
+        assert done == ["update"] and exit_status() == 143
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc to find the ffmpeg child")
 def test_sigterm_during_a_render_ends_ffmpeg_and_removes_the_temp_file(tmp_path):
     clip = tmp_path / "clip"
