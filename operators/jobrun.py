@@ -133,8 +133,8 @@ class JobOperator:
         return {"RUNNING_MODAL"}
 
     def modal(self, context, event) -> set[str]:
-        if self._job is None:  # ended already (Blender's cancel()): nothing left to run
-            return self._finish(context, {"CANCELLED"})
+        if self._job is None:  # ended already (Blender's cancel()): nothing to run, another job's status stays
+            return {"CANCELLED"}
         if event.type == "ESC" or context.window_manager.rvr_job_status == "CANCELLING":
             try:
                 self._job.cancel()
