@@ -32,6 +32,13 @@ def _children(pid: int) -> list[int]:
     return out
 
 
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().decode(errors="replace")
+    except OSError:
+        return ""
+
+
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -90,7 +97,7 @@ def test_sigterm_during_a_render_ends_ffmpeg_and_removes_the_temp_file(tmp_path)
                 break
             time.sleep(0.05)
         assert proc.poll() is None and tmp, ("the render ended before it wrote", proc.communicate())
-        encoders = [c for c in _children(proc.pid) if "ffmpeg" in Path(f"/proc/{c}/cmdline").read_bytes().decode()]
+        encoders = [c for c in _children(proc.pid) if "ffmpeg" in _cmdline(c)]
         assert encoders
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
