@@ -72,13 +72,22 @@ def test_a_sigterm_held_back_by_a_training_step_is_still_a_sigterm():
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc to find the ffmpeg child")
-def test_sigterm_during_a_render_ends_ffmpeg_and_removes_the_temp_file(tmp_path):
-    clip = tmp_path / "clip"
-    clip.mkdir()
-    rng = np.random.default_rng(0)
-    frame = (rng.random((H, W, 3)) * 255).astype(np.uint8)
-    for i in range(N):
-        cv2.imwrite(str(clip / f"f{i:04d}.png"), np.roll(frame, i, axis=1))
+@pytest.mark.parametrize("source", ["png_frames", "mp4"])
+def test_sigterm_during_a_render_ends_ffmpeg_and_removes_the_temp_file(tmp_path, source):
+    if source == "mp4":  # decoded by an ffmpeg child too
+        from rvr_addon.io.video import ffmpeg_exe
+
+        clip = tmp_path / "clip.mp4"
+        subprocess.run([ffmpeg_exe(), "-v", "error", "-y", "-f", "lavfi", "-i",
+                        f"testsrc2=size={W}x{H}:rate=24:duration={N / 24}", "-pix_fmt", "yuv420p", "-c:v", "libx264",
+                        "-preset", "ultrafast", str(clip)], check=True)
+    else:
+        clip = tmp_path / "clip"
+        clip.mkdir()
+        rng = np.random.default_rng(0)
+        frame = (rng.random((H, W, 3)) * 255).astype(np.uint8)
+        for i in range(N):
+            cv2.imwrite(str(clip / f"f{i:04d}.png"), np.roll(frame, i, axis=1))
     depth = tmp_path / "d.npy"
     np.save(depth, np.tile(np.linspace(-8, 8, W, dtype=np.float32), (H, 1)))
     out_dir = tmp_path / "out"
@@ -97,8 +106,8 @@ def test_sigterm_during_a_render_ends_ffmpeg_and_removes_the_temp_file(tmp_path)
                 break
             time.sleep(0.05)
         assert proc.poll() is None and tmp, ("the render ended before it wrote", proc.communicate())
-        encoders = [c for c in _children(proc.pid) if "ffmpeg" in _cmdline(c)]
-        assert encoders
+        encoders = [c for c in _children(proc.pid) if "ffmpeg" in _cmdline(c)]  # ffmpeg children
+        assert len(encoders) >= (2 if source == "mp4" else 1), encoders  # the encoder (and the decoder)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     finally:
