@@ -58,6 +58,7 @@ import numpy as np
 
 from ..errors import InputError
 from . import flow as fl
+from .cuts import link_checks
 from .settings import WINDOWS, TemporalSettings  # noqa: F401 - re-exported: rvr_addon.temporal.filter.TemporalSettings
 
 log = logging.getLogger(__name__)
@@ -263,16 +264,9 @@ class TemporalFilter:
     def _link(self, prev: _Frame, cur: _Frame) -> bool:
         """Flows between the newest buffered frame and ``cur``, chains; False at a scene cut."""
         s = self.settings
-        f_pc = self.flow(prev.gray, cur.gray)
-        f_cp = self.flow(cur.gray, prev.gray)
-        maps_cp, maps_pc = fl.flow_maps(f_cp), fl.flow_maps(f_pc)
-        ok_cp = fl.consistent(f_cp, f_pc, s.delta_px, s.delta_rel, maps=maps_cp)
-        ok_cp &= fl.photometric_ok(cur.color, prev.color, f_cp, s.photometric_tol, ok_cp, pixel_tol=s.pixel_tol,
-                                   grad_a=cur.grad, slack_px=s.slack_px, maps=maps_cp)
-        ok_pc = fl.consistent(f_pc, f_cp, s.delta_px, s.delta_rel, maps=maps_pc)
-        ok_pc &= fl.photometric_ok(prev.color, cur.color, f_pc, s.photometric_tol, ok_pc, pixel_tol=s.pixel_tol,
-                                   grad_a=prev.grad, slack_px=s.slack_px, maps=maps_pc)
-        self.last_fail_fraction = 1.0 - 0.5 * (float(ok_cp.mean()) + float(ok_pc.mean()))
+        link = link_checks(self.flow, prev.gray, cur.gray, prev.color, cur.color, prev.grad, cur.grad, s)
+        f_pc, f_cp, ok_pc, ok_cp = link.f_ab, link.f_ba, link.ok_ab, link.ok_ba
+        self.last_fail_fraction = link.fail_fraction
         if self.last_fail_fraction > s.cut_fraction:
             return False
         m_cp, m_pc = self._valid(ok_cp), self._valid(ok_pc)
