@@ -1,7 +1,11 @@
 """AF-Net inference: weights, the streaming runner, and New Focus Targets from its outputs.
 
 :func:`load_afnet` reads exported weights (``rvr train-afnet``; default
-``rvr_addon/afnet/weights/afnet.pt``) with ``torch.load(weights_only=True)``.
+``rvr_addon/afnet/weights/afnet.pt``) with ``torch.load(weights_only=True)``, or runs their ONNX
+export beside them (``afnet_unit.onnx`` and ``afnet_head.onnx``, ``scripts/export_onnx.py``) with
+ONNX Runtime when it is importable (:mod:`rvr_addon.onnxrun`: no torch needed, as in the Blender
+extension). The stream drives either through the same numpy interface (:class:`TorchRunner`,
+:class:`OnnxRunner`).
 
 :class:`AFNetStream` takes a clip's frames in order (:func:`.model.encode_frame` bytes) and
 evaluates a query every ``stride`` frames (q = 0, stride, 2 stride, ...) as soon as the frames
@@ -38,11 +42,11 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
-import torch
 
 from ..errors import InputError
 from .audio_features import window
-from .model import AFNet, AFNetConfig, decode_frames, map_to_prob
+from .config import AFNetConfig
+from .encoding import decode_frames_np
 
 log = logging.getLogger(__name__)
 
@@ -52,19 +56,74 @@ REGION_LAG_FRAMES = 10
 WEIGHTS_FORMAT = "rvr-laaf-afnet/1"
 
 
-def load_afnet(path: str | Path | None = None) -> tuple[AFNet, dict]:
-    """(model in eval mode, header dict) from an exported weights file (default: the shipped one).
-    The header gains ``file_id``: the first 16 hex digits of the file's SHA-256 (what a batch's
-    fingerprint records), read from the same bytes as the model.
+def onnx_paths(path: Path) -> tuple[Path, Path]:
+    """The ONNX export of AF-Net weights ``DIR/NAME.pt`` (or of ``DIR/NAME_unit.onnx`` itself):
+    ``DIR/NAME_unit.onnx`` and ``DIR/NAME_head.onnx``."""
+    stem = path.stem[:-len("_unit")] if path.suffix == ".onnx" and path.stem.endswith("_unit") else path.stem
+    return path.with_name(f"{stem}_unit.onnx"), path.with_name(f"{stem}_head.onnx")
+
+
+def load_afnet(path: str | Path | None = None, backend: str | None = None) -> tuple[object, dict]:
+    """(model, header dict) from exported weights (default: the shipped ones). The model is an
+    :class:`~.model.AFNet` in eval mode (torch) or an :class:`OnnxAFNet`; both have ``config``
+    and run in :class:`AFNetStream`. The header gains ``file_id``: the first 16 hex digits of the
+    weights file's SHA-256 (what a batch's fingerprint records; an ONNX export records the one of
+    the ``.pt`` it came from).
+
+    backend: ``torch``, ``onnx`` or ``auto`` (None: ``$RVR_INFERENCE``, else ``auto``): ``auto``
+    runs the ONNX export beside the weights when onnxruntime is importable and the export was
+    made from them (or the ``.pt`` is absent, as in the Blender extension): it is faster than
+    torch here (0.14 vs 0.24 s for a 30-frame clip, one thread each, same P within 1e-5), else torch.
 
     Raises InputError naming the path and the command that makes the file when it is missing,
-    unreadable, of another format or of another architecture."""
+    unreadable, of another format or of another architecture, or when neither torch nor
+    onnxruntime can run it."""
+    from .. import onnxrun
+
     path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    choice = onnxrun.backend(backend)
+    unit, head = onnx_paths(path)
+    exported = onnxrun.matching_onnx(path, unit) and onnxrun.matching_onnx(path, head)
+    if path.suffix == ".onnx" or choice == "onnx" or (choice == "auto" and onnxrun.has_onnxruntime() and exported):
+        return _load_onnx(unit, head)
+    if choice == "auto" and not onnxrun.has_torch():
+        raise InputError(f"AF-Net weights '{path}' need torch here, or their ONNX export (`python "
+                         f"scripts/export_onnx.py` where torch is, writes {unit.name} and {head.name} beside them) "
+                         f"and onnxruntime; {onnxrun.INSTALL_HELP}")
+    return _load_torch(path)
+
+
+def _load_onnx(unit: Path, head: Path) -> tuple["OnnxAFNet", dict]:
+    from .. import onnxrun
+
+    graphs = onnxrun.load_graph(unit, "afnet_unit", 1), onnxrun.load_graph(head, "afnet_head", 1)
+    if graphs[0].source_hash != graphs[1].source_hash:
+        raise InputError(f"'{unit}' and '{head}' come from different weights; regenerate both with "
+                         "`python scripts/export_onnx.py`")
+    header = {**graphs[0].header, "file_id": graphs[0].source_hash}
+    try:
+        config = AFNetConfig.from_dict(header["config"]).check()
+    except (KeyError, ValueError) as ex:
+        raise InputError(f"'{unit}' records no AF-Net config this version reads ({ex}); regenerate it with "
+                         "`python scripts/export_onnx.py`") from ex
+    return OnnxAFNet(config, *graphs), header
+
+
+def _load_torch(path: Path) -> tuple[object, dict]:
+    """AF-Net weights with torch (see :func:`load_afnet`)."""
     make = ("train them with `rvr train-afnet --data DATASET -o RUN` (scripts/afnet_data.sh makes the data) "
             f"and pass --afnet-weights RUN/afnet.pt, or copy RUN/afnet.pt to {DEFAULT_WEIGHTS}; the presets "
             "action, conversation, faces and salient work without AF-Net")
     if not path.is_file():
         raise InputError(f"AF-Net weights '{path}' not found: {make}")
+    try:
+        import torch
+    except ImportError as ex:
+        from ..onnxrun import INSTALL_HELP
+
+        raise InputError(f"'{path}' needs torch, which is not importable ({ex}): {INSTALL_HELP}") from ex
+    from .model import AFNet
+
     try:
         data = path.read_bytes()
         ck = torch.load(io.BytesIO(data), map_location="cpu", weights_only=True)
@@ -84,12 +143,92 @@ def load_afnet(path: str | Path | None = None) -> tuple[AFNet, dict]:
     return model, header
 
 
+class OnnxAFNet:
+    """AF-Net as its two exported graphs (CNN-1 per unit, CNN-2 head) on ONNX Runtime."""
+
+    def __init__(self, config: AFNetConfig, unit, head) -> None:
+        self.config = config
+        self.unit_graph, self.head_graph = unit, head
+
+    def eval(self) -> "OnnxAFNet":
+        """Nothing to switch (the torch model's ``eval()``, for the stream)."""
+        return self
+
+
+class OnnxRunner:
+    """CNN-1 and CNN-2 of an :class:`OnnxAFNet` on numpy arrays (the stream's interface)."""
+
+    def __init__(self, model: OnnxAFNet) -> None:
+        self.model, self.config = model, model.config
+
+    def unit(self, codes: np.ndarray, audio: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """codes (N, f_T, C, H, W) uint8, audio (N, f_T, audio) float32 or None -> (features
+        (N, C1, H/8, W/8), map logits (N, H/4, W/4)), as :meth:`.model.AFNet.unit`."""
+        cfg = self.config
+        x = decode_frames_np(codes, cfg)
+        n, f, c, h, w = x.shape
+        x = x.reshape(n, f * c, h, w)
+        if cfg.audio:
+            a = cfg.audio
+            planes = np.zeros((n, f * a), np.float32) if audio is None else audio.reshape(n, f * a).astype(np.float32)
+            x = np.concatenate([x, np.broadcast_to(planes[:, :, None, None], (n, f * a, h, w))], axis=1)
+        feat, m = self.model.unit_graph.run({"x": np.ascontiguousarray(x, dtype=np.float32)})
+        return feat, m[:, 0]
+
+    def head(self, feats: np.ndarray, audio: np.ndarray | None) -> np.ndarray:
+        """feats (B, s, C1, h, w), audio (B, audio, span) or None -> NFT logits (B,)."""
+        cfg = self.config
+        b, s, c, h, w = feats.shape
+        feeds = {"feats": np.ascontiguousarray(feats.reshape(b, s * c, h, w), dtype=np.float32)}
+        if cfg.audio:
+            feeds["audio"] = (np.zeros((b, cfg.audio, cfg.span), np.float32) if audio is None
+                              else np.ascontiguousarray(audio, dtype=np.float32))
+        return self.model.head_graph.run(feeds)[0].reshape(b)
+
+
+class TorchRunner:
+    """CNN-1 and CNN-2 of a torch :class:`~.model.AFNet` on numpy arrays (the stream's interface)."""
+
+    def __init__(self, model) -> None:
+        self.model, self.config = model.eval(), model.config
+
+    def unit(self, codes: np.ndarray, audio: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        import torch
+
+        from .model import decode_frames
+
+        with torch.inference_mode():
+            feat, m = self.model.unit(decode_frames(codes, self.config),
+                                      None if audio is None else torch.from_numpy(np.ascontiguousarray(audio)))
+        return feat.numpy(), m.numpy()
+
+    def head(self, feats: np.ndarray, audio: np.ndarray | None) -> np.ndarray:
+        import torch
+
+        with torch.inference_mode():
+            out = self.model.head(torch.from_numpy(np.ascontiguousarray(feats)),
+                                  None if audio is None else torch.from_numpy(np.ascontiguousarray(audio)))
+        return out.numpy()
+
+
+def runner_of(model) -> "OnnxRunner | TorchRunner":
+    """The numpy interface of a loaded AF-Net (ONNX or torch)."""
+    return OnnxRunner(model) if isinstance(model, OnnxAFNet) else TorchRunner(model)
+
+
 @contextlib.contextmanager
 def torch_threads(n: int | None):
-    """Run the block with ``n`` torch CPU threads (None: as set), then restore the setting.
+    """Run the block with ``n`` torch CPU threads (None: as set), then restore the setting; nothing
+    without torch loaded (an ONNX AF-Net has its own single thread).
 
     A query is a few small convolutions: on a busy 2-core machine two threads spin against the
     other jobs and were 9x slower than one (0.31 s vs 2.8 s for a 40-frame test clip)."""
+    import sys
+
+    torch = sys.modules.get("torch")
+    if torch is None:
+        yield
+        return
     old = torch.get_num_threads()
     if n is None or n == old:
         yield
@@ -109,6 +248,15 @@ def check_length(n_frames: int, config: AFNetConfig, what: str = "the clip") -> 
                     what, n_frames, config.span, config.frames_seen, config.sample_step)
         return True
     return False
+
+
+def map_to_prob_np(logits: np.ndarray) -> np.ndarray:
+    """Spatial softmax of map logits (..., h, w) -> float32 distributions over the map cells
+    (:func:`.model.map_to_prob` in numpy, float64 inside)."""
+    shape = logits.shape
+    flat = logits.reshape(*shape[:-2], -1).astype(np.float64)
+    flat = np.exp(flat - flat.max(axis=-1, keepdims=True))
+    return (flat / flat.sum(axis=-1, keepdims=True)).reshape(shape).astype(np.float32)
 
 
 @dataclass
@@ -198,11 +346,12 @@ class AFNetStream:
     only by a network with an audio input.
     """
 
-    def __init__(self, model: AFNet, n_frames: int, threshold: float = 0.5, min_gap: int = 12,
+    def __init__(self, model, n_frames: int, threshold: float = 0.5, min_gap: int = 12,
                  threads: int | None = 1, audio: np.ndarray | None = None) -> None:
         if n_frames < 1:
             raise InputError("AF-Net needs a clip of at least one frame")
         self.model = model.eval()
+        self.runner = runner_of(model)
         self.config = model.config
         self.n = int(n_frames)
         self.threshold = float(threshold)
@@ -214,7 +363,7 @@ class AFNetStream:
         self.audio = audio if cfg.audio else None
         self.queries = list(range(0, self.n, cfg.stride))
         self._frames: dict[int, np.ndarray] = {}
-        self._units: dict[int, torch.Tensor] = {}
+        self._units: dict[int, np.ndarray] = {}
         self.probs: dict[int, float] = {}
         self.maps: dict[int, np.ndarray] = {}
         self.pushed = 0
@@ -244,18 +393,17 @@ class AFNetStream:
     def _frame(self, k: int) -> np.ndarray:
         return self._frames[min(max(k, 0), self.n - 1)]
 
-    def _unit(self, c: int) -> torch.Tensor:
+    def _unit(self, c: int) -> np.ndarray:
         if c not in self._units:
             x = np.stack([self._frame(c + int(o)) for o in self._unit_frames])[None]
             audio = None
             if self.config.audio:
                 half = int(self._unit_frames[-1])
                 cols = window(self.audio, c, half, self.config.audio)[:, self._unit_frames + half]
-                audio = torch.from_numpy(np.ascontiguousarray(cols.T))[None]
-            with torch.inference_mode():
-                feat, m = self.model.unit(decode_frames(x, self.config), audio)
+                audio = np.ascontiguousarray(cols.T, dtype=np.float32)[None]
+            feat, m = self.runner.unit(x, audio)
             self._units[c] = feat[0]
-            self.maps[c] = map_to_prob(m)[0].numpy().astype(np.float32)
+            self.maps[c] = map_to_prob_np(m)[0]
         return self._units[c]
 
     def _run(self, final: bool) -> None:
@@ -265,12 +413,12 @@ class AFNetStream:
             need = min(q + cfg.half_span, self.n - 1)
             if not final and need >= self.pushed:
                 break
-            feats = torch.stack([self._unit(q + int(o)) for o in cfg.unit_offsets])[None]
+            feats = np.stack([self._unit(q + int(o)) for o in cfg.unit_offsets])[None]
             audio = None
             if cfg.audio:
-                audio = torch.from_numpy(window(self.audio, q, cfg.half_span, cfg.audio))[None]
-            with torch.inference_mode():
-                self.probs[q] = float(torch.sigmoid(self.model.head(feats, audio))[0])
+                audio = np.ascontiguousarray(window(self.audio, q, cfg.half_span, cfg.audio), dtype=np.float32)[None]
+            logit = float(self.runner.head(feats, audio)[0])
+            self.probs[q] = float(1.0 / (1.0 + math.exp(-logit))) if logit > -700 else 0.0
             self._next_q += 1
             # forget what no later query needs
             lo = q + cfg.stride - cfg.half_span
@@ -330,7 +478,7 @@ class ClipPrediction:
     padded: bool = False
 
 
-def predict_clip(model: AFNet, frames: Iterable[np.ndarray], disparities: Iterable[np.ndarray | None] | None = None,
+def predict_clip(model, frames: Iterable[np.ndarray], disparities: Iterable[np.ndarray | None] | None = None,
                  n_frames: int | None = None, threshold: float = 0.5, min_gap: int = 12,
                  audio: np.ndarray | None = None) -> ClipPrediction:
     """Run AF-Net over a clip: frames (H, W, 3) uint8 RGB (and optional disparity maps, any size;
@@ -340,7 +488,7 @@ def predict_clip(model: AFNet, frames: Iterable[np.ndarray], disparities: Iterab
     n = n_frames or len(frames)
     stream = AFNetStream(model, n, threshold, min_gap, audio=audio)
     for rgb, d in zip(frames, disp):
-        from .model import encode_frame
+        from .encoding import encode_frame
 
         stream.push(encode_frame(rgb, d, model.config))
     stream.finish()

@@ -137,6 +137,7 @@ def test_missing_shipped_weights_name_the_file_and_the_fix(tmp_path, clip, monke
     from rvr_addon.estimate import infer
 
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", tmp_path / "gone" / "estimator.onnx")  # its export is a fallback
     with pytest.raises(InputError, match="weights file is missing.*gone/estimator.pt"):
         EstimateJob(EstimateSettings(input=clip, output=tmp_path / "c"))
 
@@ -186,6 +187,7 @@ def test_cli_estimate_then_render_from_the_cache(clip, tmp_path, weights, capsys
     from rvr_addon.estimate import infer
 
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", tmp_path / "gone" / "estimator.onnx")  # its export is a fallback
     assert main(["estimate", str(clip), "-o", str(tmp_path / "c2"), "-q"]) == 2
     err = capsys.readouterr().err
     assert "weights file is missing" in err and "rvr train" in err

@@ -61,7 +61,7 @@ class AFNetDetector(FocusDetector):
         self._nfts = 0
 
     def process(self, t: int, frame: AnalysisFrame) -> None:
-        from ...afnet.model import encode_frame
+        from ...afnet.encoding import encode_frame
 
         self.size = (frame.rgb.shape[1], frame.rgb.shape[0])
         self.stream.push(encode_frame(frame.rgb, frame.disparity, self.config))
