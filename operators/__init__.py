@@ -16,5 +16,8 @@ def register() -> None:
 
 
 def unregister() -> None:
+    from . import notes
+
     for module in reversed(_modules):
         module.unregister()
+    notes.stop()

@@ -23,14 +23,13 @@ After Analyze the panel shows which cues spoke (:func:`depth_line`, from the cac
 """
 from __future__ import annotations
 
-import importlib.util
 import logging
 from dataclasses import dataclass
 from pathlib import Path
 
 import bpy
 
-from . import compat, prefs
+from . import compat, notes, prefs
 from .jobrun import JobOperator
 from .ops_render import poll_clip_strip
 from .source import StripSource, abspath, cache_folder, resolve_source
@@ -76,14 +75,14 @@ def plan_analyze(scene, strip, preferences=None) -> AnalyzePlan:
         if depth is None or preferences.weights_path:
             raise
         weights = None  # depth from elsewhere, no HDR recovery until weights exist
-    if weights is not None and importlib.util.find_spec("torch") is None:
+    from ..rvr_addon.estimate.infer import estimator_unavailable
+
+    reason = estimator_unavailable(weights) if weights is not None else ""
+    if reason:
         if depth is None:
-            raise InputError("Analyze needs torch to run the estimator network, and this Blender has none: install "
-                             "the full build of the extension (rvr_laaf-<version>-full.zip, built with "
-                             "scripts/build_extension.py --with-torch), or set the strip's Disparity maps (depth from "
-                             "elsewhere)")
-        log.warning("torch is not installed: strip '%s' is analysed with its disparity maps and without HDR "
-                    "recovery (install the full build of the extension for the estimator)", strip.name)
+            raise InputError(f"Analyze cannot run the estimator network: {reason}; or set the strip's Disparity maps "
+                             "(depth from elsewhere)")
+        log.warning("strip '%s' is analysed with its disparity maps and without HDR recovery: %s", strip.name, reason)
         weights = None
     method = str(getattr(strip.rvr, "depth_method", "AUTO")).lower()
     if depth is not None and method != "auto":
@@ -244,6 +243,7 @@ class RVR_OT_analyze(JobOperator, bpy.types.Operator):
         return poll_clip_strip(cls, context)
 
     def _prepare(self, context):
+        notes.start()
         preferences = prefs.get(context)
         plan = plan_analyze(compat.sequencer_scene(context), compat.active_strip(context), preferences)
         return plan, start_analyze(plan, preferences)
@@ -252,6 +252,7 @@ class RVR_OT_analyze(JobOperator, bpy.types.Operator):
         apply_analyze(plan.source.scene_name, plan)
         note = "" if plan.weights is not None else " (disparity from the strip's maps; no HDR: no estimator weights)"
         self.report({"INFO"}, f"Analyzed '{plan.source.strip_name}': {job.summary()}{note}; cache {plan.cache}")
+        notes.report(self.report)
 
 
 classes = (RVR_OT_analyze,)

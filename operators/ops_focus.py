@@ -147,6 +147,7 @@ def plan_focus(scene, strip: "Strip", preset: str | None, window_s: float) -> Fo
     from ..rvr_addon.laaf.lookahead import AutofocusSettings
     from ..rvr_addon.laaf.puller import PullSettings
 
+    notes.start()  # the engine's warnings from here to the report are shown in the UI
     source = resolve_source(scene, strip)
     rvr = strip.rvr
     cache = analysed_cache(strip)
@@ -277,6 +278,7 @@ class _FocusJobOperator(JobOperator):
         hand = f", kept {counts['hand_keys']} keys you set by hand" if counts["hand_keys"] else ""
         self.report({"INFO"}, f"{what} '{plan.source.strip_name}': {counts['targets']} targets "
                               f"({counts['added']} new), {counts['keys']} focus keys{hand}{note}")
+        notes.report(self.report)
 
 
 class RVR_OT_track_targets(_FocusJobOperator, bpy.types.Operator):

@@ -108,7 +108,7 @@ def weights_file(prefs) -> Path:
 
     Raises InputError naming the missing file and the fix.
     """
-    from ..rvr_addon.estimate.infer import NO_WEIGHTS_HELP, SHIPPED_WEIGHTS
+    from ..rvr_addon.estimate.infer import NO_WEIGHTS_HELP, SHIPPED_ONNX, SHIPPED_WEIGHTS
 
     if prefs.weights_path:
         path = Path(bpy.path.abspath(prefs.weights_path))
@@ -118,6 +118,8 @@ def weights_file(prefs) -> Path:
         return path
     if SHIPPED_WEIGHTS.is_file():
         return SHIPPED_WEIGHTS
+    if SHIPPED_ONNX.is_file():  # the extension zip ships the ONNX export only
+        return SHIPPED_ONNX
     raise InputError(f"no estimator weights: '{SHIPPED_WEIGHTS}' does not exist yet. Fix: set Preferences > "
                      "Add-ons > RVR-LAAF Refocus > Estimator Weights to a trained estimator.pt, or set the strip's "
                      f"Disparity maps (depth from elsewhere) and Analyze again. ({NO_WEIGHTS_HELP})")

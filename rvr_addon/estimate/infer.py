@@ -111,6 +111,25 @@ def load_estimator(path: str | Path, backend: str | None = None) -> LoadedModel:
     return _load_torch(path)
 
 
+def estimator_unavailable(path: str | Path, backend: str | None = None) -> str:
+    """Why :func:`load_estimator` cannot run ``path`` in this Python ("" when it can), checked
+    without importing torch or onnxruntime: a ``.pt`` needs torch or its matching ``.onnx`` and
+    onnxruntime; an ``.onnx`` needs onnxruntime."""
+    from .. import onnxrun
+
+    path = Path(path)
+    choice = onnxrun.backend(backend)
+    beside = path if path.suffix == ".onnx" else path.with_suffix(".onnx")
+    onnx_ok = onnxrun.has_onnxruntime() and onnxrun.matching_onnx(path, beside)
+    if choice == "torch" or (path.suffix != ".onnx" and not beside.is_file()):
+        return "" if onnxrun.has_torch() else f"'{path.name}' needs torch, which is not importable here"
+    if onnx_ok or (choice == "auto" and path.suffix != ".onnx" and onnxrun.has_torch() and path.is_file()):
+        return ""
+    if not onnxrun.has_onnxruntime():
+        return f"'{beside.name}' needs onnxruntime, which is not importable here ({onnxrun.INSTALL_HELP})"
+    return f"'{beside}' was not exported from '{path}': regenerate it with `python scripts/export_onnx.py`"
+
+
 def _load_onnx(path: Path) -> LoadedModel:
     from .. import onnxrun
     from .onnx_infer import OnnxEstimatorNet

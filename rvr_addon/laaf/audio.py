@@ -6,7 +6,8 @@ activity comes from WebRTC's VAD (PyPI ``webrtcvad-wheels``) on 30 ms frames, ag
 3, then per video frame: voiced if at least half of the 30 ms VAD frames overlapping it are
 voiced and the frame's RMS is within ``gate_db`` (-30 dB) of the clip's 99th-percentile RMS
 (WebRTC flags breaths and hiss in near silence); gaps shorter than ``bridge_s`` are closed and
-bursts shorter than ``min_s`` dropped.
+bursts shorter than ``min_s`` dropped. Where ``webrtcvad`` cannot be imported, a pure-numpy
+energy and speech-band detector (:func:`energy_vad`) stands in, with a warning.
 """
 from __future__ import annotations
 
@@ -84,19 +85,52 @@ def _close_gaps(flags: np.ndarray, max_gap: int, min_run: int) -> np.ndarray:
     return out[:n]
 
 
+def energy_vad(samples: np.ndarray, rate: int = SAMPLE_RATE, hop: int | None = None,
+               band: tuple[float, float] = (300.0, 3400.0), share: float = 0.5, gate_db: float = -35.0) -> np.ndarray:
+    """Voice activity per 30 ms frame without WebRTC (pure numpy; the fallback where ``webrtcvad``
+    is not importable): a frame is voiced when its energy is within ``gate_db`` of the clip's
+    95th-percentile frame and at least ``share`` of it lies in the speech ``band`` (Hz), which
+    rejects hum and hiss. Coarser than WebRTC's model; :func:`analyse_audio`'s loudness gate and
+    gap closing apply on top. Returns (n_frames,) bool."""
+    hop = hop or int(round(VAD_FRAME_S * rate))
+    n = len(samples) // hop
+    if n == 0:
+        return np.zeros(0, bool)
+    frames = samples[:n * hop].reshape(n, hop).astype(np.float32) * np.hanning(hop).astype(np.float32)
+    power = np.abs(np.fft.rfft(frames, axis=1)) ** 2
+    freqs = np.fft.rfftfreq(hop, 1.0 / rate)
+    total = power.sum(axis=1) + 1e-12
+    in_band = power[:, (freqs >= band[0]) & (freqs <= band[1])].sum(axis=1) / total
+    loud = total >= float(np.percentile(total, 95)) * 10 ** (gate_db / 10)
+    return (in_band >= share) & loud
+
+
+def webrtc_available() -> bool:
+    """Whether WebRTC's VAD (``webrtcvad``, PyPI ``webrtcvad-wheels``) can be imported."""
+    import importlib.util
+
+    return importlib.util.find_spec("webrtcvad") is not None
+
+
 def analyse_audio(samples: np.ndarray, fps: float, n_frames: int, rate: int = SAMPLE_RATE,
                   aggressiveness: int = 3, bridge_s: float = 0.05, min_s: float = 0.08,
                   gate_db: float = -30.0) -> AudioTrack:
-    """Voice activity and envelope per video frame (frame k covers [k/fps, (k+1)/fps) s)."""
-    import webrtcvad
-
-    vad = webrtcvad.Vad(int(aggressiveness))
+    """Voice activity and envelope per video frame (frame k covers [k/fps, (k+1)/fps) s).
+    Without ``webrtcvad`` the voice activity comes from :func:`energy_vad`, with a warning."""
     hop = int(round(VAD_FRAME_S * rate))
     pcm = (np.clip(samples, -1, 1) * 32767).astype("<i2")
     n_vad = len(pcm) // hop
-    flags = np.zeros(n_vad, bool)
-    for i in range(n_vad):
-        flags[i] = vad.is_speech(pcm[i * hop:(i + 1) * hop].tobytes(), rate)
+    if webrtc_available():
+        import webrtcvad
+
+        vad = webrtcvad.Vad(int(aggressiveness))
+        flags = np.zeros(n_vad, bool)
+        for i in range(n_vad):
+            flags[i] = vad.is_speech(pcm[i * hop:(i + 1) * hop].tobytes(), rate)
+    else:
+        log.warning("voice activity from the energy fallback: webrtcvad is not installed (pip install "
+                    "webrtcvad-wheels==2.0.14.post1; the Blender extension bundles it for linux-x64)")
+        flags = energy_vad(samples, rate, hop)
     frac = np.zeros(n_frames, np.float32)
     env = np.zeros(n_frames, np.float32)
     for k in range(n_frames):

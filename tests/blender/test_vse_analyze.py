@@ -109,14 +109,16 @@ def test_analyze_bad_input(registered, factory_scene, vse_clip, vse_depth, tmp_p
     assert strip.rvr.cache_path == "" and not (tmp_path / "cache").exists()
 
 
-def test_analyze_without_torch_says_to_install_the_full_build(movie_strip, vse_weights, vse_depth, use_prefs,
-                                                             monkeypatch):
+def test_analyze_without_torch_names_what_the_weights_need(movie_strip, vse_weights, vse_depth, use_prefs,
+                                                          monkeypatch):
+    """A trained .pt without an ONNX export needs torch (the shipped weights run from their export:
+    test_vse_install)."""
     import importlib.util
 
     real = importlib.util.find_spec
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "torch" else real(name, *a))
     use_prefs(weights_path=str(vse_weights))
-    with pytest.raises(RuntimeError, match="full.zip"):
+    with pytest.raises(RuntimeError, match=f"{vse_weights.name}' needs torch"):
         bpy.ops.rvr.analyze("EXEC_DEFAULT")
     assert movie_strip.rvr.cache_path == ""
     movie_strip.rvr.depth_path = str(vse_depth)  # with maps: analysed from them, without HDR recovery
