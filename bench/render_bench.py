@@ -6,7 +6,12 @@ The scene: a real picture (a Sintel frame from ../shared/data, resized) with sma
 highlights (radiance 40-400x the 8-bit white) in the background, over a synthetic depth
 layout (receding ground, mid-ground objects, a far wall, an in-focus subject) whose blur
 radius spans -8..+32 px at 1080p (scaled by width at 360p), focused on the subject, with at
-least 24 layers. The last line of stdout is the JSON of DESIGN.md's keys.
+least 24 layers. Also timed: the same picture with the depth the shipped network estimates for
+it (``render.fast.1080p_real_depth.*``: noisy real depth activates more tiles), the exact path
+without half-resolution layers (``render.fast_exact.*``, and ``psnr_vs_exact_db`` of the default
+against it), and the reference timing of the same run, one ``cv2.GaussianBlur`` (sigma 16) of the
+RGB frame (``reference.gauss16.<size>.s``; ``render.fast.<size>.gauss_ratio`` = fast / that).
+The last line of stdout is the JSON of DESIGN.md's keys.
 """
 from __future__ import annotations
 
@@ -103,6 +108,37 @@ def main() -> None:
         res[f"render.fast.{key}.max_radius_px"] = float(np.abs(disp).max())
         print(f"fast {key}: {res[f'render.fast.{key}.s_per_frame']:.3f} s/frame, {len(plan)} layers", file=sys.stderr)
     res["render.fast.1080p.peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    # the reference timing of the same run: one Gaussian blur (sigma 16) of the RGB frame, and the
+    # exact path (no half-resolution layers) with its distance to the default
+    for key, (img, rad, disp) in scenes.items():
+        x = np.ascontiguousarray(rad, np.float32)
+        res[f"reference.gauss16.{key}.s"] = seconds_per_frame(lambda: cv2.GaussianBlur(x, (0, 0), 16), repeats)
+        res[f"render.fast.{key}.gauss_ratio"] = res[f"render.fast.{key}.s_per_frame"] / res[f"reference.gauss16.{key}.s"]
+        ex = FastRenderer(min_layers=MIN_LAYERS, half_res_radius=None)
+        res[f"render.fast_exact.{key}.s_per_frame"] = seconds_per_frame(lambda: ex.render_linear(rad, disp, 0.0, 1.0),
+                                                                       repeats)
+        a = linear_to_srgb(np.clip(ex.render_linear(rad, disp, 0.0, 1.0), 0, 1))
+        b = linear_to_srgb(np.clip(FastRenderer(min_layers=MIN_LAYERS).render_linear(rad, disp, 0.0, 1.0), 0, 1))
+        res[f"render.fast.{key}.psnr_vs_exact_db"] = min(psnr(b, a), 200.0)  # 200: identical
+        print(f"{key}: gauss16 {res[f'reference.gauss16.{key}.s']:.3f} s, ratio "
+              f"{res[f'render.fast.{key}.gauss_ratio']:.2f}; exact path {res[f'render.fast_exact.{key}.s_per_frame']:.3f} s, "
+              f"default vs exact {res[f'render.fast.{key}.psnr_vs_exact_db']:.1f} dB", file=sys.stderr)
+    # a real estimated depth map (the shipped network on the same picture), focused on its median,
+    # the aperture set so the largest blur radius is 32 px as in the bench scene
+    try:
+        from rvr_addon.estimate.infer import Estimator, default_weights, load_estimator
+
+        img, rad, _ = scenes["1080p"]
+        d_real, _ = Estimator(load_estimator(default_weights()))(img)
+        f = float(np.median(d_real))
+        a = MAX_RADIUS_1080P / max(float(np.abs(d_real - f).max()), 1e-6)
+        fr = FastRenderer(min_layers=MIN_LAYERS)
+        res["render.fast.1080p_real_depth.s_per_frame"] = seconds_per_frame(
+            lambda: fr.render_linear(rad, d_real, f, a), repeats)
+        res["render.fast.1080p_real_depth.gauss_ratio"] = (res["render.fast.1080p_real_depth.s_per_frame"]
+                                                           / res["reference.gauss16.1080p.s"])
+    except Exception as ex:  # noqa: BLE001 - no weights: the key is absent, said once
+        print(f"real-depth timing skipped: {ex}", file=sys.stderr)
     img, rad, disp = scenes["1080p"]
     for name, spec in [("polygon7", ApertureSpec("polygon", blades=7)), ("anamorphic2x", ApertureSpec("anamorphic")),
                        ("cat_eye", ApertureSpec(cat_eye=0.5))]:

@@ -1,10 +1,12 @@
 """Fast path and torch path against the brute-force reference, and the model's promises."""
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 import torch
 
+from rvr_addon.color import linear_to_srgb
 from rvr_addon.errors import InputError
 from rvr_addon.render.aperture import ApertureSpec, make_kernel
 from rvr_addon.render.fast import FastRenderer, render_frame
@@ -167,12 +169,33 @@ def test_background_blur_never_bleeds_over_a_sharp_foreground():
 
 def test_blurred_foreground_spreads_over_a_sharp_background():
     rad, disp, fg = _fg_bg()
-    out = FastRenderer().render_linear(rad, disp, 8.0, 1.0)  # focus on the background: fg radius 12
+    exact = FastRenderer(half_res_radius=None).render_linear(rad, disp, 8.0, 1.0)  # focus on the bg: fg radius 12
     far = np.ones_like(fg)
     far[0:30 + 13, 20 - 13:40 + 13] = False
-    assert np.abs(out[far] - rad[far]).max() < 1e-5  # beyond the rim: untouched background
-    rim = out[20, 20 - 6]  # 6 px outside the silhouette: a mix of both colours
+    assert np.abs(exact[far] - rad[far]).max() < 1e-5  # beyond the rim: untouched background
+    rim = exact[20, 20 - 6]  # 6 px outside the silhouette: a mix of both colours
     assert 0.15 < rim[0] < 0.85
+    # the default blurs radius >= 12 px at half resolution: the rim leaks a trace one or two px further
+    out = FastRenderer().render_linear(rad, disp, 8.0, 1.0)
+    assert np.abs(out[far] - rad[far]).max() < 0.005
+    assert np.abs(out - exact).max() < 0.03 and 0.15 < out[20, 20 - 6][0] < 0.85
+
+
+def test_half_resolution_blur_of_large_radii_stays_within_40_db_of_the_exact_model():
+    rng = np.random.default_rng(4)
+    h, w = 120, 160
+    rad = cv2.GaussianBlur(rng.random((h, w, 3)).astype(np.float32), (0, 0), 1.5)
+    rad[rng.random((h, w)) > 0.997] = 60.0  # sparse HDR highlights: bokeh balls with rims
+    yy = np.mgrid[:h, :w][0].astype(np.float32)
+    disp = (30.0 * yy / h - 6.0).astype(np.float32)  # radii 0..24 px at focus 0
+    exact = FastRenderer(half_res_radius=None).render_linear(rad, disp, 0.0, 1.0)
+    fast = FastRenderer().render_linear(rad, disp, 0.0, 1.0)
+    a, b = linear_to_srgb(np.clip(exact, 0, 1)), linear_to_srgb(np.clip(fast, 0, 1))
+    psnr = 10 * np.log10(1.0 / np.mean((a - b) ** 2))
+    assert psnr >= 40.0
+    # radius >= 12 px from row 72 on, reaching at most 24 (+2) px up: rows above 40 are the exact
+    # model's (up to float summation order and the frame-wide fill)
+    assert np.abs(exact[:40] - fast[:40]).max() < 1e-4
 
 
 def test_hdr_point_becomes_a_bokeh_ball_conserving_energy():
