@@ -73,8 +73,8 @@ from typing import Callable, Iterable, Iterator
 import cv2
 import numpy as np
 
-from rvr_addon.depth.cues import CueMap, focal_px
-from rvr_addon.temporal.flow import DISFlow, fb_error, flow_size, to_flow_gray
+from .cues import CueMap, focal_px
+from ..temporal.flow import DISFlow, fb_error, flow_size, to_flow_gray
 
 NAME = "parallax"
 MAX_CORNERS = 400
