@@ -73,6 +73,16 @@ def add_autofocus_parser(sub) -> None:
     p.add_argument("--causal", action="store_true", help="no look-ahead (window 0): what a camera could do")
     _pull_args(p)
     p.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the track (default 1.0)")
+    from .presets import DEFAULT_CALM
+
+    p.add_argument("--calm", type=float, default=DEFAULT_CALM, metavar="0..1",
+                   help=f"calm <-> responsive (default {DEFAULT_CALM}): 1 holds focus (minimum hold, hysteresis, "
+                        "a cost for each change, a follow deadband), 0 pulls on every detected change (the paper)")
+    cuts = p.add_mutually_exclusive_group()
+    cuts.add_argument("--cuts", metavar="FILE|FRAMES",
+                      help='the shot cuts, instead of detecting them: frames ("12,80": 0-based first frame of each '
+                           "new shot) or a file (JSON list, {\"cuts\": [...]} e.g. a focus file, or text)")
+    cuts.add_argument("--no-cuts", action="store_true", help="no shot cuts: do not detect any")
     p.add_argument("--min-step", type=float, default=0.5,
                    help="smallest focus change (disparity units) that makes an NFT (default 0.5)")
     p.add_argument("--analysis-width", type=int, default=320, help="detector/tracker width in px (default 320)")
@@ -106,12 +116,21 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         if maps is not None:
             check_cache_source(maps, args.input, command="autofocus")
     _check_afnet(args)
+    cut_list = None
+    if args.cuts is not None:
+        from ..temporal.cuts import parse_cuts
+
+        try:
+            cut_list = parse_cuts(args.cuts)
+        except (ValueError, OSError) as ex:
+            raise RvrError(f"--cuts: {ex}") from None
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,
         depth_offset=args.depth_offset, preset=args.preset, targets=args.targets, window_s=args.window,
         causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
         min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
-        afnet_threshold=args.afnet_threshold, afnet_speaker=args.afnet_region == "speaker")
+        afnet_threshold=args.afnet_threshold, afnet_speaker=args.afnet_region == "speaker", cuts=cut_list,
+        detect_cuts=not args.no_cuts, calm=args.calm)
     job = AutofocusJob(settings)
     with on_interrupt("autofocus", lambda: "cancelled; nothing written"):
         result = job.run(progress=not args.quiet)
@@ -126,6 +145,8 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         print(f"wrote {args.plot}")
     nfts = ", ".join(f"{n.t + result.start}({n.source})" for n in result.nfts)
     note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""
+    if result.cuts:
+        note += f"; shot cuts at {', '.join(str(c + result.start) for c in result.cuts)}"
     print(f"wrote {args.output}: {len(result.focus)} frames, {len(result.keys)} keys, NFTs at {nfts}{note} "
           f"({len(result.focus) / max(result.seconds, 1e-9):.1f} frames/s)")
     return 0

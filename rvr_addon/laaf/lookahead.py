@@ -17,6 +17,15 @@ The per-frame work (frames at the analysis size, disparity, the detectors' ``mea
 by ``analysis.FrameAnalyser`` here, or comes measured already in chunks (``frames=``, from
 ``analysis.measure_range``; ``rvr batch``): the result is the same (``analysis`` docstring).
 
+Shot cuts (issue 23): the shared detector (``temporal.cuts.CutDetector``) runs on every
+analysis frame, or the user gives the cut list (``cuts``; ``detect_cuts`` False: none). At a
+cut every track ends (targets, face tracks: ``FocusDetector.cut``), the new shot's subject
+becomes a target on the cut frame itself (a hard change: ``PullTarget.at_cut``), steps of the
+focus signal next to a cut are the cut itself and make no NFT, and no pull crosses a cut
+(``puller.schedule_pulls``). Focus that holds: the ``calm`` knob (:mod:`.calm`) raises the
+step threshold, defers a step within the minimum hold of the previous target, takes a step
+only if its new level persists, and puts a deadband on following a subject.
+
 Manual NFTs (``nfts``/``targets``) are tracked from their frame (forward to the next NFT,
 backward over the pull before it); with a preset as well, automatic NFTs closer than
 ``pull_frames`` to a manual one are dropped (the user wins).
@@ -35,14 +44,16 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.video import ClipInfo, iter_frames
+from ..temporal.cuts import CutDetector
 from .analysis import (FrameAnalyser, FrameMeasurement, build_detectors, check_frame_size, measured_names, open_clip,
                        shrink)
+from .calm import DEFAULT_CALM, calm_settings, check_calm, deadband, persists
 from .combine import PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
 from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
 from .focus_reading import read_focus
 from .keyframes import Key, keyframes
 from .nft import NFT, Box, load_nfts, validate_nfts
-from .puller import ComposedTrack, PullSettings, PullTarget, compose_track
+from .puller import ComposedTrack, PullSettings, PullTarget, compose_track, shot_bounds
 from .tracking import SubjectTracker
 
 log = logging.getLogger(__name__)
@@ -69,6 +80,10 @@ class AutofocusSettings:
     afnet_speaker: preset 'learned' on a clip with sound: an NFT near a voice onset takes its
     region from the speaker the speech detector localises (mouth motion or audio-visual
     synchrony) instead of AF-Net's map; False: always the map (the paper's AF-Net alone).
+    cuts: the shot cuts (0-based clip frames of the first frame of each new shot) given by the
+    user; None: detected (``detect_cuts``). detect_cuts: False and no ``cuts``: no cuts at all.
+    calm: 0 (responsive, the paper) .. 1 (calm): hysteresis, minimum hold, cost of a change
+    and follow deadband (:mod:`.calm`).
     """
 
     input: Path
@@ -96,6 +111,9 @@ class AutofocusSettings:
     afnet_weights: Path | None = None
     afnet_threshold: float | None = None
     afnet_speaker: bool = True
+    cuts: list[int] | None = None
+    detect_cuts: bool = True
+    calm: float = DEFAULT_CALM
 
 
 @dataclass
@@ -119,7 +137,8 @@ class AutofocusResult:
     re-initialisation and exit events; signal: per-frame raw and held focus level of the
     detector combination (NaN = empty); detectors: metrics; clip: ClipInfo; start: first frame.
     boxes: per NFT (same order), {frame: ((x, y, w, h) native px, on_subject)} for the frames
-    its subject was tracked (forward and backward over its pull; frames relative to start)."""
+    its subject was tracked (forward and backward over its pull; frames relative to start).
+    cuts: first frames of new shots (relative to start)."""
 
     focus: np.ndarray
     aperture: np.ndarray
@@ -134,6 +153,7 @@ class AutofocusResult:
     settings: dict
     seconds: float
     boxes: list[dict[int, tuple[Box, bool]]] = field(default_factory=list)
+    cuts: list[int] = field(default_factory=list)
 
 
 class AutofocusJob:
@@ -152,6 +172,10 @@ class AutofocusJob:
             raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
         if s.window_s < 0:
             raise InputError(f"--window {s.window_s} must be >= 0 seconds (0 = causal)")
+        try:
+            check_calm(s.calm)
+        except ValueError as ex:
+            raise InputError(f"--calm: {ex}") from None
         self.setup = open_clip(s)
         self.clip = self.setup.clip
         self.start, self.stop = self.setup.start, self.setup.stop
@@ -177,11 +201,28 @@ class AutofocusJob:
         self.analyser = FrameAnalyser(self.detectors, measured)
         self._measured_frames = frames
         self.learned = self.detectors.get("afnet")  # preset 'learned': AF-Net proposes the NFTs itself
-        self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
-                                          causal=self.causal)
         self.detector_lag = max([d.lookahead_frames for n, d in self.detectors.items()
                                  if n in self._combo] or [0])
-        keep = self.detector_lag + self.step_detector.delay + 3 + s.pull.lead_frames + s.pull.pull_frames + 4
+        self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
+                                          causal=self.causal)
+        # look-ahead: the persistence of a new level is checked in frames the window still sees before
+        # the pull must start; causal: not at all (waiting for it would make every pull later still)
+        spare = (0 if self.causal else
+                 self.window - self.detector_lag - self.step_detector.delay - s.pull.lead_frames - s.pull.pull_frames)
+        self.calm = calm_settings(s.calm, self.fps, s.aperture, max_persist=spare)
+        self.step_detector.min_step = s.min_step * self.calm.step_factor  # hysteresis
+        keep = (self.detector_lag + self.step_detector.delay + 3 + s.pull.lead_frames + s.pull.pull_frames + 4
+                + self.calm.persist_frames)
+        self._pending: list = []  # (Step, frame its decision is due): steps waiting for persistence / the hold
+        if s.cuts is not None:
+            self.cuts_source = "given"
+            self.cuts = sorted({int(c) - self.start for c in s.cuts if self.start < int(c) < self.stop})
+        else:
+            self.cuts_source = "detected" if s.detect_cuts else "off"
+            self.cuts = []
+        self._cutset = set(self.cuts)
+        self.cut_detector = CutDetector() if s.cuts is None and s.detect_cuts else None
+        self.cut_guard = self.step_detector.r + self.step_detector.filter_radius + 1
         self.buffer: deque[AnalysisFrame] = deque(maxlen=keep)
         self.targets: list[TargetState] = []
         # a tracked subject's reading may move this much per frame (disparity units); more is
@@ -262,6 +303,17 @@ class AutofocusJob:
             return False
         k = self._k
         af, features, seconds = self._analyse(item, k)
+        if self.cut_detector is not None:
+            t0 = time.perf_counter()
+            if self.cut_detector.push(af.rgb) and k > 0:
+                log.info("autofocus: shot cut at frame %d (%.0f%% of the pixels fail the flow checks): tracks and "
+                         "targets restart", k + self.start, 100 * self.cut_detector.fail[-1])
+                self.cuts.append(k)
+                self._cutset.add(k)
+            self._timings["cuts_s"] = self._timings.get("cuts_s", 0.0) + time.perf_counter() - t0
+        if k in self._cutset:
+            for det in self.detectors.values():
+                det.cut(k)
         self.buffer.append(af)
         self._ingest(k, af, features, seconds)
         while self._measured <= k - self.detector_lag:
@@ -287,7 +339,8 @@ class AutofocusJob:
                 self._commit_learned(cand, ingest=last)
         elif self._combo:
             for st in self.step_detector.finish():
-                self._commit(st, ingest=last)
+                self._propose(st)
+            self._resolve(last, ingest=last, final=True)
         self._finished = True
         self.result = self._compose()
 
@@ -309,24 +362,100 @@ class AutofocusJob:
         for old in [k for k in self.regions if k < m - self.buffer.maxlen]:
             del self.regions[old]
         self.raw[m] = level
-        if m == 0 and not any(t.nft.t == 0 for t in self.targets):
-            self._initial_target(af, region, level, ingest)
+        new_shot = m == 0 or m in self._cutset
+        if new_shot and not any(t.nft.t == m for t in self.targets):
+            self._initial_target(af, region, level, ingest, t=m)
             if not math.isfinite(level):
-                level = float(self.targets[0].level[0]) if self.targets else level
+                mine = [tg for tg in self.targets if tg.nft.t == m]
+                level = float(mine[0].level[m]) if mine else level
         self._timings["combine_s"] += time.perf_counter() - t0
         steps = self.step_detector.push(level)
         if self.learned is not None:
             for cand in self.learned.take_nfts():
-                self._commit_learned(cand, ingest)
+                if not self._near_cut(cand[0]):
+                    self._commit_learned(cand, ingest)
         else:
             for st in steps:
-                self._commit(st, ingest)
+                self._propose(st)
+            self._resolve(m, ingest)
         self.held[m] = self.step_detector.held[m]
 
-    def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int) -> None:
-        """The focus before the first NFT: the preset's region on frame 0, else the largest face,
-        else the salient majority region (see combine.INITIAL_CHAIN)."""
-        if any(n.t == 0 for n in self.manual):
+    # -- cuts and calm ------------------------------------------------------------------------
+    def _near_cut(self, e: int) -> bool:
+        """A step at frame e within ``cut_guard`` frames of a cut is the cut itself."""
+        return any(abs(e - c) <= self.cut_guard for c in self.cuts)
+
+    def _last_target_t(self, e: int) -> int | None:
+        """Frame of the latest pulled-to target at or before e on e's shot (None if none; the
+        shot's first target, set on its first frame, starts no hold)."""
+        first, _ = shot_bounds(e, self.cuts)
+        ts = [tg.nft.t for tg in self.targets if first < tg.nft.t <= e]
+        return max(ts) if ts else None
+
+    def _propose(self, st) -> None:
+        """A step of the focus signal: dropped next to a cut, else decided once its
+        persistence window (calm) and the minimum hold after the previous target are seen."""
+        e = st.frame
+        if self._near_cut(e):
+            log.debug("step at frame %d is a shot cut; the cut's own target covers it", e)
+            return
+        p = self.settings.pull
+        due = e + self.calm.persist_frames
+        last = self._last_target_t(e)
+        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames:
+            due = max(due, last + self.calm.hold_frames + p.lead_frames + p.pull_frames)
+        self._pending.append((st, due))
+
+    def _resolve(self, m: int, ingest: int, final: bool = False) -> None:
+        """Decide the pending steps due by frame m (all of them when final)."""
+        if not self._pending:
+            return
+        keep = []
+        for st, due in self._pending:
+            if due > m and not final:
+                keep.append((st, due))
+                continue
+            self._decide(st, min(due, m), ingest)
+        self._pending = keep
+
+    def _decide(self, st, due: int, ingest: int) -> None:
+        e = st.frame
+        _, nxt = shot_bounds(e, self.cuts)
+        if nxt is not None and nxt <= due:
+            log.debug("step at frame %d: a cut follows at frame %d before it is decided; dropped", e, nxt)
+            return
+        tol = max(0.5 * abs(st.after - st.before), 0.3)
+        if self.calm.persist_frames and not persists(self.raw[e:min(e + self.calm.persist_frames, due + 1)],
+                                                     st.after, tol):
+            log.debug("step at frame %d: its new level %.2f does not persist; held", e, st.after)
+            return
+        first, _ = shot_bounds(e, self.cuts)
+        if any(e <= tg.nft.t and first <= tg.nft.t for tg in self.targets):
+            log.debug("step at frame %d: focus moved on since; dropped", e)
+            return
+        last = self._last_target_t(e)
+        p = self.settings.pull
+        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames:
+            t_new = last + self.calm.hold_frames + p.lead_frames + p.pull_frames
+            if t_new >= self.n:
+                return
+            seen = self.raw[max(t_new - 3, 0):t_new + 1]
+            seen = seen[np.isfinite(seen)]
+            if seen.size == 0 or abs(float(np.median(seen)) - st.after) > tol:
+                log.debug("step at frame %d (minimum hold until %d): the scene no longer asks for it", e, t_new)
+                return
+            from .combine import Step
+
+            self._commit(Step(t_new, st.before, st.after), ingest, search=range(max(t_new - 4, 0), t_new + 1))
+            return
+        self._commit(st, ingest)
+
+    def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int,
+                        t: int = 0) -> None:
+        """The focus before the first NFT of a shot (frame t: 0 or a cut): the preset's region on
+        frame t, else the largest face, else the salient majority region (see
+        combine.INITIAL_CHAIN). At a cut the NFT is a hard change on the cut frame."""
+        if any(n.t == t for n in self.manual):
             return
         source = self._source(region.detectors) if region is not None else None
         if region is None:
@@ -334,7 +463,7 @@ class AutofocusJob:
             from .detectors.saliency import SaliencyDetector
 
             face = self.detectors.get("face")
-            boxes = face.faces_at(0) if isinstance(face, FaceDetector) else []
+            boxes = face.faces_at(t) if isinstance(face, FaceDetector) else []
             if not boxes:
                 try:
                     boxes = [(b, 1.0, None) for b in FaceDetector(backend=self.settings.face_backend).detect(af)]
@@ -359,8 +488,10 @@ class AutofocusJob:
             mask[int(h * 0.4):int(h * 0.6), int(w * 0.4):int(w * 0.6)] = True
             region = Region(w / 2, h / 2, box, mask, 0.04, ())
             source = "initial"
-        nft = self._nft_from_region(region, 0, source, known_at=0, subject=None)
-        self._add_target(nft, region.box, 0, ingest, mask=region.mask)
+        nft = self._nft_from_region(region, t, source, known_at=max(t - 1, 0), subject=None)
+        if t > 0:
+            nft = replace(nft, pull_frames=1, lead_frames=0, detail={"cut": True})
+        self._add_target(nft, region.box, t, ingest, mask=region.mask)
 
     def _source(self, used: tuple[str, ...]) -> str:
         for name in ("afnet", "speech", "action", "face", "saliency"):
@@ -376,10 +507,13 @@ class AutofocusJob:
         box = tuple(v / s for v in region.box)
         return NFT(region.x / s, region.y / s, t, box, source, known_at=known_at, subject=subject)
 
-    def _commit(self, step, ingest: int) -> None:
+    def _commit(self, step, ingest: int, search: range | None = None) -> None:
         e = step.frame
         region = None
-        for k in range(e, min(e + 4, self._measured)):
+        first, nxt = shot_bounds(e, self.cuts)
+        for k in (search if search is not None else range(e, min(e + 4, self._measured))):
+            if k < first or (nxt is not None and k >= nxt):
+                continue  # a region of another shot
             r = self.regions.get(k)
             if r is not None and abs(region_level(self._frame(k).disparity, r) - step.after) < max(0.5, 0.5 * abs(step.after - step.before)):
                 region, e_region = r, k
@@ -472,7 +606,8 @@ class AutofocusJob:
         p = self.settings.pull
         back = SubjectTracker()
         back.start(af.rgb, box, t_box)
-        for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, 0) - 1, -1):
+        first, nxt = shot_bounds(nft.t, self.cuts)
+        for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, first, 0) - 1, -1):
             f = self._frame(k)
             if f is None:
                 break
@@ -495,6 +630,10 @@ class AutofocusJob:
         self.targets.append(tg)
         self.targets.sort(key=lambda x: x.nft.t)
         for k in range(t_box + 1, ingest + 1):
+            if nxt is not None and k >= nxt:  # the shot ended: no box is carried over the cut
+                tg.active = False
+                tg.events.append({"frame": nxt, "status": "cut", "score": 0.0, "direction": "forward"})
+                break
             f = self._frame(k)
             if f is not None:
                 self._update_target(tg, f)
@@ -522,6 +661,11 @@ class AutofocusJob:
 
     def _track(self, af: AnalysisFrame) -> None:
         t0 = time.perf_counter()
+        if af.t in self._cutset:
+            for tg in self.targets:
+                if tg.active and tg.nft.t < af.t:
+                    tg.active = False
+                    tg.events.append({"frame": af.t, "status": "cut", "score": 0.0, "direction": "forward"})
         for tg in self.targets:
             if tg.active and tg.tracker is not None and tg.tracker.state.frame < af.t:
                 self._update_target(tg, af)
@@ -535,13 +679,13 @@ class AutofocusJob:
                              "with --targets")
         pts = []
         for tg in self.targets:
-            level = tg.level.copy()
+            level = deadband(tg.level, self.calm.deadband)
             if not np.isfinite(level).any():
                 level[tg.nft.t] = float(np.nanmedian(self.held)) if np.isfinite(self.held).any() else 0.0
             pts.append(PullTarget(tg.nft.t, level, known_at=tg.nft.known_at, lost_from=tg.lost_from,
                                   aperture=tg.nft.aperture, pull_frames=tg.nft.pull_frames,
-                                  lead_frames=tg.nft.lead_frames))
-        composed = compose_track(pts, self.n, s.pull, aperture=s.aperture)
+                                  lead_frames=tg.nft.lead_frames, at_cut=bool(tg.nft.detail.get("cut"))))
+        composed = compose_track(pts, self.n, s.pull, aperture=s.aperture, cuts=self.cuts)
         keys = keyframes(composed.focus, composed.aperture, tol=s.keyframe_tol)
         tracking = []
         for i, tg in enumerate(self.targets):
@@ -566,13 +710,18 @@ class AutofocusJob:
                     "lead_frames": s.pull.lead_frames, "profile": s.pull.profile, "hold_frames": s.pull.hold_frames,
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
                     "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
+                    "cuts": [c + self.start for c in self.cuts], "cuts_source": self.cuts_source,
+                    "calm": {"calm": self.calm.calm, "step_factor": round(self.calm.step_factor, 3),
+                             "min_step_effective": round(s.min_step * self.calm.step_factor, 4),
+                             "hold_frames": self.calm.hold_frames, "persist_frames": self.calm.persist_frames,
+                             "deadband": round(self.calm.deadband, 4)},
                     "timings_s": {k: round(v, 3) for k, v in self._timings.items()}}
         inv = 1.0 / self.scale
         boxes = [{k: (tuple(float(v) * inv for v in b), ok) for k, (b, ok) in sorted(t.boxes.items())}
                  for t in self.targets]
         return AutofocusResult(composed.focus, composed.aperture, keys, [t.nft for t in self.targets], tracking,
                                {"raw": self.raw, "held": self.held}, metrics, composed, self.clip, self.start,
-                               settings, seconds, boxes)
+                               settings, seconds, boxes, list(self.cuts))
 
     def cancel(self) -> None:
         """Stop (Esc, Ctrl-C; any time, idempotent): the decoder is closed and no result is made.

@@ -15,6 +15,9 @@ PRESETS: dict[str, tuple[str, ...]] = {
 DEFAULT_PRESET = "conversation"
 """The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
 
+DEFAULT_CALM = 0.5
+"""The default of the calm <-> responsive knob, 0..1 (:mod:`.calm`; ``rvr autofocus --calm``, Blender)."""
+
 PROFILES = ("linear", "ease_in_out_cubic", "ease_in_out_sine", "critically_damped")
 """Focus-pull profiles (:func:`.puller.pull_weight`)."""
 

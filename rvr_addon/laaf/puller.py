@@ -19,6 +19,12 @@ Special cases (all reported in ``Pull.note``):
   one ends and is compressed (at least ``min_pull_frames``);
 - the previous target was lost (``lost_from``): its focus is held for ``hold_frames``, then the
   pull to this target may start early ("hold, then release to the next target").
+
+Shot cuts (``cuts``: first frame of each new shot): no pull crosses a cut. A target of a shot
+is never pulled to before the shot starts (its pull starts on the cut at the earliest); a pull
+of the previous shot that would end after the cut is cut short there; a target ``at_cut``
+(the new shot's subject, its NFT on the cut frame) is a hard change: weight 0 on the frame
+before the cut, 1 on the cut frame (the pull spans exactly (c - 1, c)).
 """
 from __future__ import annotations
 
@@ -97,6 +103,7 @@ class PullTarget:
     aperture: float | None = None
     pull_frames: int | None = None
     lead_frames: int | None = None
+    at_cut: bool = False
 
 
 @dataclass
@@ -134,13 +141,32 @@ def fill_hold(level: np.ndarray) -> np.ndarray:
     return level[idx]
 
 
-def schedule_pulls(targets: list[PullTarget], settings: PullSettings) -> list[Pull]:
-    """When each pull starts and ends (see the module docstring); targets sorted by t."""
+def shot_bounds(t: int, cuts) -> tuple[int, int | None]:
+    """(first frame of the shot holding frame t, first frame of the next shot or None) for
+    sorted cut frames ``cuts``."""
+    first, nxt = 0, None
+    for c in cuts:
+        if c <= t:
+            first = c
+        else:
+            nxt = c
+            break
+    return first, nxt
+
+
+def schedule_pulls(targets: list[PullTarget], settings: PullSettings, cuts=()) -> list[Pull]:
+    """When each pull starts and ends (see the module docstring); targets sorted by t;
+    cuts: sorted first frames of new shots (no pull crosses one)."""
     settings.check()
+    cuts = sorted(int(c) for c in cuts)
     pulls: list[Pull] = []
     prev_end = 0
     for i in range(1, len(targets)):
         tg, prev = targets[i], targets[i - 1]
+        if tg.at_cut:
+            pulls.append(Pull(i, max(tg.t - 1, 0), tg.t, f"cut at frame {tg.t}: hard change", planned_end=tg.t))
+            prev_end = tg.t
+            continue
         P = settings.pull_frames if tg.pull_frames is None else int(tg.pull_frames)
         lead = settings.lead_frames if tg.lead_frames is None else int(tg.lead_frames)
         if P < 1 or lead < 0:
@@ -162,24 +188,34 @@ def schedule_pulls(targets: list[PullTarget], settings: PullSettings) -> list[Pu
             notes.append(f"known at frame {tg.known_at}: late")
         start = max(start, 0)
         end = max(end, start + min(settings.min_pull_frames, P))
+        first, nxt = shot_bounds(tg.t, cuts)
+        if start < first:
+            end = max(end, first + min(settings.min_pull_frames, P))
+            start = first
+            notes.append(f"shot starts at frame {first}: the pull starts on the cut")
+        if nxt is not None and end > nxt:
+            end = nxt
+            start = min(start, end - 1)
+            notes.append(f"cut at frame {nxt}: the pull is cut short there")
         pulls.append(Pull(i, start, end, "; ".join(notes), planned_end=tg.t - lead))
         prev_end = end
     return pulls
 
 
 def compose_track(targets: list[PullTarget], n_frames: int, settings: PullSettings | None = None,
-                  aperture: float = 1.0) -> ComposedTrack:
+                  aperture: float = 1.0, cuts=()) -> ComposedTrack:
     """Per-frame focus and aperture for ``n_frames`` frames from targets (sorted by t).
 
     aperture: the starting aperture scale (>= 0); a target with its own aperture pulls it in
-    step with the focus. Raises ValueError with no target or a target without any level.
+    step with the focus. cuts: first frames of new shots (module docstring). Raises
+    ValueError with no target or a target without any level.
     """
     settings = settings or PullSettings()
     if not targets:
         raise ValueError("no focus target: give at least one NFT")
     if any(targets[i].t > targets[i + 1].t for i in range(len(targets) - 1)):
         raise ValueError("targets must be sorted by frame")
-    pulls = schedule_pulls(targets, settings)
+    pulls = schedule_pulls(targets, settings, cuts)
     k = np.arange(n_frames, dtype=np.float64)
     focus = fill_hold(targets[0].level)[:n_frames]
     ap = np.full(n_frames, float(targets[0].aperture if targets[0].aperture is not None else aperture))

@@ -91,6 +91,10 @@ class FocusDetector:
     def flush(self) -> None:
         """End of the clip: the remaining frames may be decided with what is known."""
 
+    def cut(self, t: int) -> None:
+        """Frame t starts a new shot (called before frame t is ingested): forget what must not
+        carry over a cut (tracks, held boxes). Outputs of earlier frames stay valid."""
+
     def metrics(self) -> dict:
         """Counts and timings for the report (names end in their unit)."""
         return {}

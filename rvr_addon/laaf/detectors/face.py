@@ -167,6 +167,13 @@ class FaceDetector(FocusDetector):
         self._seconds = 0.0
         self._detections = 0
         self._frames_with_faces = 0
+        self._cut_at: int | None = None
+
+    def cut(self, t: int) -> None:
+        """A new shot from frame t: face tracks end (new ids after the cut) and frame t is
+        detected afresh instead of holding the previous shot's boxes."""
+        self._tracks = {}
+        self._cut_at = t
 
     def _associate(self, boxes: list[Box], t: int, fps: float) -> list[tuple[Box, float, str | None]]:
         out = []
@@ -211,7 +218,7 @@ class FaceDetector(FocusDetector):
         """Link the boxes of a detection frame into face tracks, or hold the last frame's faces.
         (The first frame ingested is always a detection frame: detected here if not measured.)"""
         self._shape = frame.gray.shape
-        if boxes is None and not self._at:
+        if boxes is None and (not self._at or self._cut_at == t):
             start = time.perf_counter()
             boxes = self.detect(frame)
             self._seconds += time.perf_counter() - start

@@ -1,0 +1,172 @@
+"""LAAF and shot cuts (issue 23): one shared detector, tracks and targets restart at a cut, no
+pull crosses it, the focus jumps on the cut frame, the cut list is in the focus file and can
+be given (``--cuts``) or switched off (``--no-cuts``)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from laaf_synth import entering_square, texture, write_clip
+from rvr_addon.cli import main as rvr_main
+from rvr_addon.io.track import load_track
+from rvr_addon.laaf.focusfile import write_focus_file
+from rvr_addon.laaf.lookahead import AutofocusJob, AutofocusSettings
+from rvr_addon.laaf.puller import PullSettings, PullTarget, compose_track
+from rvr_addon.temporal.cuts import CutDetector, detect_cuts, parse_cuts
+
+CUT = 40
+CLIPS = Path(__file__).resolve().parents[3] / "shared" / "data" / "clips"
+
+
+def second_shot(n: int = 40, size=(128, 72), enter: int = 15):
+    """Another scene: a different texture, everything at disparity 5 until a square at
+    disparity 2 slides in from the left at frame ``enter``."""
+    w, h = size
+    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
+    obj = texture(20, 20, 8)
+    frames, maps = [], []
+    for k in range(n):
+        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
+        x0 = int(round(-20 + (k - enter + 1) * 3.0)) if k >= enter else -100
+        x0 = min(x0, w // 2)
+        if x0 > -20:
+            xa, xb = max(x0, 0), x0 + 20
+            f[10:30, xa:xb] = obj[:, xa - x0:]
+            d[10:30, xa:xb] = 2.0
+        frames.append(f)
+        maps.append(d)
+    return frames, maps
+
+
+@pytest.fixture(scope="module")
+def two_shots(tmp_path_factory):
+    fa, ma, _ = entering_square(n=CUT, enter=12)
+    fb, mb = second_shot()
+    return write_clip(tmp_path_factory.mktemp("cut"), fa + fb, ma + mb)
+
+
+def _run(clip, **kw):
+    fdir, ddir = clip
+    return AutofocusJob(AutofocusSettings(input=fdir, depth=ddir, preset="action", fps=24, **kw)).run(progress=False)
+
+
+def _check_respects(r, cut: int) -> None:
+    assert r.cuts == [cut]
+    # focus jumps exactly on the cut frame, from the first shot's subject to the second shot's
+    assert r.focus[cut - 1] == pytest.approx(0.0, abs=0.1)
+    assert r.focus[cut] == pytest.approx(5.0, abs=0.1)
+    assert np.allclose(r.focus[cut - 8:cut], r.focus[cut - 1], atol=0.05)  # nothing pulls toward shot 2 before
+    for p in r.composed.pulls:
+        assert not (p.start < cut < p.end), p  # no pull crosses the cut
+        t = r.nfts[p.index].t
+        if t >= cut:
+            assert p.start >= cut - 1 and (p.start >= cut or r.nfts[p.index].t == cut)
+    cut_nfts = [n for n in r.nfts if n.t == cut]
+    assert len(cut_nfts) == 1 and cut_nfts[0].detail.get("cut")
+    for n, boxes in zip(r.nfts, r.boxes):  # no box carried across the cut, either way
+        frames = list(boxes)
+        if n.t < cut:
+            assert all(k < cut for k in frames)
+        else:
+            assert all(k >= cut for k in frames)
+    # the second shot's own subject still gets its pull, after the cut
+    later = [n for n in r.nfts if n.t > cut]
+    assert later and r.focus[-1] == pytest.approx(2.0, abs=0.3)
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_detected_cut_restarts_targets_and_is_never_pulled_across(two_shots, causal):
+    r = _run(two_shots, causal=causal)
+    _check_respects(r, CUT)
+    assert r.settings["cuts"] == [CUT] and r.settings["cuts_source"] == "detected"
+
+
+def test_given_cuts_and_no_cuts(two_shots):
+    given = _run(two_shots, cuts=[CUT], detect_cuts=False)
+    _check_respects(given, CUT)
+    assert given.settings["cuts_source"] == "given"
+    off = _run(two_shots, detect_cuts=False)
+    assert off.cuts == [] and off.settings["cuts_source"] == "off"
+
+
+def test_focus_file_holds_the_cuts_and_the_cli_takes_them(two_shots, tmp_path, capsys):
+    fdir, ddir = two_shots
+    out = tmp_path / "focus.json"
+    assert rvr_main(["autofocus", str(fdir), "--depth", str(ddir), "--fps", "24", "--preset", "action",
+                     "--cuts", str(CUT), "-o", str(out), "-q"]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["cuts"] == [CUT] and doc["settings"]["cuts_source"] == "given"
+    assert load_track(out) is not None  # the track reader still reads it
+    # a focus file is itself a cut file
+    assert parse_cuts(out) == [CUT]
+    off = tmp_path / "off.json"
+    assert rvr_main(["autofocus", str(fdir), "--depth", str(ddir), "--fps", "24", "--preset", "action",
+                     "--no-cuts", "-o", str(off), "-q"]) == 0
+    assert json.loads(off.read_text())["cuts"] == []
+
+
+def test_parse_cuts(tmp_path):
+    assert parse_cuts("80, 12") == [12, 80]
+    (tmp_path / "c.txt").write_text("5\n9 9\n")
+    assert parse_cuts(tmp_path / "c.txt") == [5, 9]
+    (tmp_path / "c.json").write_text(json.dumps({"cuts": [3, 1]}))
+    assert parse_cuts(tmp_path / "c.json") == [1, 3]
+    for bad in ("a,2", "-1", "2.5", tmp_path / "missing.json"):
+        with pytest.raises(ValueError):
+            parse_cuts(bad)
+
+
+def test_puller_never_crosses_a_cut():
+    n = 60
+    a = PullTarget(0, np.zeros(n))
+    b = PullTarget(28, np.full(n, 2.0), known_at=25)  # late: its pull would end at 35, after the cut at 30
+    d = PullTarget(30, np.full(n, 6.0), at_cut=True)
+    e = PullTarget(34, np.full(n, 8.0))  # planned start 19: before its shot
+    tr = compose_track([a, b, d, e], n, PullSettings(), cuts=[30])
+    for p in tr.pulls:
+        assert not (p.start < 30 < p.end)
+    assert tr.pulls[0].end == 30 and "cut short" in tr.pulls[0].note
+    assert (tr.pulls[1].start, tr.pulls[1].end) == (29, 30)
+    assert tr.focus[29] != pytest.approx(6.0) and tr.focus[30] == pytest.approx(6.0)
+    assert tr.pulls[-1].start >= 30 and tr.focus[-1] == pytest.approx(8.0)
+
+
+def test_cut_detector_is_the_stabilizers():
+    """The same flow-check test: a still scene has no cut, a different scene is one."""
+    fa, _, _ = entering_square(n=10, enter=3)
+    fb, _ = second_shot(n=6)
+    assert detect_cuts(fa + fb) == [10]
+    det = CutDetector()
+    for f in fa:
+        assert not det.push(f)
+    assert det.push(cv2.resize(fb[0], (160, 90)))  # a size change is a cut too
+
+
+@pytest.mark.skipif(not (CLIPS / "lipnet_grid_lwbsza.mpg").is_file() or not (CLIPS / "kivy_cityCC0.mpg").is_file(),
+                    reason="needs ../shared/data/clips")
+def test_real_shots_concatenated(tmp_path):
+    """A talking head (GRID) cut to a street (kivy): one cut found on the cut frame; focus
+    holds the first shot's depth up to the cut and is on the second's from the cut frame."""
+    from rvr_addon.io.video import iter_frames
+
+    frames, maps = [], []
+    for name, n, level in (("lipnet_grid_lwbsza.mpg", 30, 1.0), ("kivy_cityCC0.mpg", 30, 4.0)):
+        for k, f in enumerate(iter_frames(CLIPS / name)):
+            if k >= n:
+                break
+            frames.append(cv2.resize(f, (320, 180), interpolation=cv2.INTER_AREA))
+            maps.append(np.full((180, 320), level, np.float32))
+    clip = write_clip(tmp_path, frames, maps)
+    for preset in ("action", "faces"):
+        r = AutofocusJob(AutofocusSettings(input=clip[0], depth=clip[1], preset=preset, fps=25)).run(progress=False)
+        assert r.cuts == [30]
+        assert np.allclose(r.focus[:30], 1.0, atol=0.05) and np.allclose(r.focus[30:], 4.0, atol=0.05)
+        assert all(not (p.start < 30 < p.end) for p in r.composed.pulls)
+        for n_, boxes in zip(r.nfts, r.boxes):
+            assert all((k < 30) == (n_.t < 30) for k in boxes)
+        out = write_focus_file(tmp_path / f"{preset}.json", r)
+        assert json.loads(out.read_text())["cuts"] == [30]
