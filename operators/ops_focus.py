@@ -28,7 +28,7 @@ import bpy
 import numpy as np
 from bpy.props import EnumProperty, FloatProperty, IntProperty
 
-from . import compat, fcurves, prefs
+from . import compat, fcurves, notes, prefs
 from .jobrun import JobOperator
 from .ops_render import poll_clip_strip
 from .props import AUTOFOCUS_PRESETS

@@ -124,8 +124,8 @@ def matching_onnx(weights: Path, onnx_path: Path) -> bool:
     exported file counts)."""
     if not onnx_path.is_file():
         return False
-    if not weights.is_file():
-        return True
+    if not weights.is_file() or weights.suffix == ".onnx":
+        return True  # nothing to compare with (only the export ships), or the export itself
     try:
         return read_metadata(onnx_path).get("rvr_source_hash") == file_hash(weights)
     except (OSError, ValueError):

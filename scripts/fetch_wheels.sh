@@ -9,6 +9,12 @@
 # protobuf 4.25.9 are bundled as they are (matplotlib, jax, sounddevice and opencv-contrib-python,
 # which its metadata also names, are not: the cue does not need them).
 #
+# onnxruntime 1.31.1 (the estimator and AF-Net as ONNX, no torch in Blender: rvr_addon/onnxrun.py) is
+# repacked the same way without its C API library and tools (23.8 -> 11.6 MB, build tag 1); its
+# dependencies numpy (Blender's), flatbuffers and protobuf are bundled already (packaging and sympy,
+# which its metadata also names, are never imported by the inference API). webrtcvad-wheels 2.0.14.post1
+# is WebRTC's voice activity detector of the Conversation preset (rvr_addon/laaf/audio.py).
+#
 # OpenEXR 3.5.3 and imageio-ffmpeg 0.8.1 publish only manylinux_2_28 wheels (glibc >= 2.28, as
 # Blender 4.2+ itself needs), opencv only manylinux2014: pip is given both platform tags.
 #
@@ -48,11 +54,17 @@ download \
     absl-py==2.5.1 \
     attrs==26.1.0 \
     flatbuffers==25.12.19 \
-    protobuf==4.25.9
+    protobuf==4.25.9 \
+    webrtcvad-wheels==2.0.14.post1
 MEDIAPIPE=mediapipe-0.10.14-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl
 if [ ! -f "wheels/${MEDIAPIPE/-cp311-/-1-cp311-}" ]; then
     [ -f "wheels/upstream/$MEDIAPIPE" ] || WHEEL_DEST=wheels/upstream download mediapipe==0.10.14
     "${PYTHON:-python3}" scripts/slim_wheel.py "wheels/upstream/$MEDIAPIPE" wheels >/dev/null
+fi
+ONNXRUNTIME=onnxruntime-1.31.1-cp311-cp311-manylinux_2_28_x86_64.whl
+if [ ! -f "wheels/${ONNXRUNTIME/-cp311-/-1-cp311-}" ]; then
+    [ -f "wheels/upstream/$ONNXRUNTIME" ] || WHEEL_DEST=wheels/upstream download onnxruntime==1.31.1
+    "${PYTHON:-python3}" scripts/slim_wheel.py "wheels/upstream/$ONNXRUNTIME" wheels >/dev/null
 fi
 
 # every wheel the manifest names must now be in ./wheels

@@ -1,5 +1,8 @@
 #!/usr/bin/env python3
-"""Repack the mediapipe wheel for the Blender extension without the models we never load.
+"""Repack the mediapipe and onnxruntime wheels for the Blender extension without what we never load.
+
+onnxruntime 1.31.1 (the ONNX networks without torch, rvr_addon/onnxrun.py): without its C API
+library, the transformer/quantization tools and the backend test API (:data:`DROP_PREFIXES`).
 
 mediapipe 0.10.14's wheel (35.7 MB) carries the models of every legacy solution; the people
 depth cue (rvr_addon/depth/people.py) runs selfie segmentation, full-range face detection and the
@@ -41,9 +44,24 @@ def slim_name(upstream: str) -> str:
     return "-".join(parts[:2] + [BUILD_TAG] + parts[2:]) + ".whl"
 
 
-def keep(name: str) -> bool:
-    """Whether a member of the upstream wheel goes into the slim one."""
-    return not name.endswith(".tflite") or name in KEEP_MODELS
+DROP_PREFIXES: dict[str, tuple[str, ...]] = {
+    "onnxruntime": (
+        "onnxruntime/capi/libonnxruntime.so",  # the C API library; the Python module links its own copy
+        "onnxruntime/transformers/", "onnxruntime/quantization/", "onnxruntime/tools/", "onnxruntime/datasets/",
+        "onnxruntime/backend/",  # the ONNX backend test API (imports onnx)
+    ),
+}
+"""Per distribution, members dropped from its wheel (what ``import onnxruntime`` and an
+``InferenceSession`` on the CPU never load: 23.8 -> about 12 MB)."""
+
+
+def keep(name: str, package: str = "mediapipe") -> bool:
+    """Whether a member of the upstream wheel of ``package`` goes into the slim one."""
+    if package == "mediapipe":
+        return not name.endswith(".tflite") or name in KEEP_MODELS
+    if name.endswith(".dist-info/entry_points.txt"):
+        return False  # console scripts of dropped modules; Blender installs no scripts anyway
+    return not name.startswith(DROP_PREFIXES.get(package, ()))
 
 
 def _record_hash(data: bytes) -> str:
@@ -54,7 +72,8 @@ def slim(upstream: Path, out_dir: Path) -> Path:
     """Write the slim copy of ``upstream`` into ``out_dir``; returns its path."""
     out = out_dir / slim_name(upstream.name)
     with zipfile.ZipFile(upstream) as src:
-        infos = [i for i in src.infolist() if keep(i.filename)]
+        package = upstream.name.split("-")[0].lower()
+        infos = [i for i in src.infolist() if keep(i.filename, package)]
         records = [i for i in infos if i.filename.endswith(".dist-info/RECORD")]
         wheel_files = [i for i in infos if i.filename.endswith(".dist-info/WHEEL")]
         if len(records) != 1 or len(wheel_files) != 1:
