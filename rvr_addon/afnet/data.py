@@ -50,7 +50,8 @@ from ..errors import InputError
 from ..io.paths import temp_sibling
 from .annotations import AnnotatedClip
 from .audio_features import AUDIO_FEATURES, frame_features, noise_features, window
-from .model import DISPARITY_CODE_SCALE, AFNetConfig, encode_frame
+from .config import AFNetConfig
+from .encoding import DISPARITY_CODE_SCALE, encode_frame
 
 log = logging.getLogger(__name__)
 
