@@ -31,4 +31,4 @@ if ! command -v espeak-ng >/dev/null 2>&1; then
     echo "rvr-laaf: espeak-ng is missing; for 'sintel_eval generate --script conversation' run: sudo apt-get install espeak-ng" >&2
   fi
 fi
-.venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg, mediapipe; cv2.ximgproc; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"
+.venv/bin/python -c "import bpy, cv2, torch, OpenEXR, imageio_ffmpeg, mediapipe, onnxruntime, onnx; cv2.ximgproc; print('rvr-laaf: .venv ready (Blender', bpy.app.version_string + ', torch', torch.__version__ + ')')"
