@@ -149,3 +149,32 @@ def test_slim_mediapipe_wheel(tmp_path):
                 assert int(size) == len(data)
     (tmp_path / "b").mkdir()
     assert slim_wheel.slim(src, tmp_path / "b").read_bytes() == out.read_bytes()
+
+
+def test_slim_onnxruntime_wheel(tmp_path):
+    """The onnxruntime copy keeps the Python module and its inference library, drops the C API
+    library, the tools and the console scripts (scripts/slim_wheel.py DROP_PREFIXES)."""
+    import slim_wheel
+
+    upstream = "onnxruntime-1.31.1-cp311-cp311-manylinux_2_28_x86_64.whl"
+    assert "./wheels/" + slim_wheel.slim_name(upstream) in light()
+    files = {"onnxruntime/__init__.py": b"x = 1\n",
+             "onnxruntime/capi/onnxruntime_pybind11_state.cpython-311-x86_64-linux-gnu.so": b"keep" * 100,
+             "onnxruntime/capi/libonnxruntime_providers_shared.so": b"keep",
+             "onnxruntime/capi/libonnxruntime.so.1.31.1": b"drop" * 1000,
+             "onnxruntime/transformers/onnx_model.py": b"drop", "onnxruntime/quantization/quantize.py": b"drop",
+             "onnxruntime/tools/symbolic_shape_infer.py": b"drop", "onnxruntime/LICENSE": b"MIT",
+             "onnxruntime-1.31.1.dist-info/entry_points.txt": b"[console_scripts]\n",
+             "onnxruntime-1.31.1.dist-info/METADATA": b"Name: onnxruntime\nVersion: 1.31.1\n",
+             "onnxruntime-1.31.1.dist-info/WHEEL": b"Wheel-Version: 1.0\nRoot-Is-Purelib: false\n",
+             "onnxruntime-1.31.1.dist-info/RECORD": b""}
+    with zipfile.ZipFile(tmp_path / upstream, "w") as z:
+        for name, data in files.items():
+            z.writestr(name, data)
+    out = slim_wheel.slim(tmp_path / upstream, tmp_path)
+    with zipfile.ZipFile(out) as z:
+        names = set(z.namelist())
+    assert {"onnxruntime/__init__.py", "onnxruntime/LICENSE", "onnxruntime/capi/libonnxruntime_providers_shared.so",
+            "onnxruntime/capi/onnxruntime_pybind11_state.cpython-311-x86_64-linux-gnu.so"} <= names
+    assert not any("libonnxruntime.so" in n or "/transformers/" in n or "/tools/" in n or "/quantization/" in n
+                   or n.endswith("entry_points.txt") for n in names)
