@@ -203,6 +203,26 @@ def depth_system(result: dict, weights: Path, tmp: Path, n_frames: int) -> None:
             print(f"no parallax timing: {MOVING_CLIP} is absent", file=sys.stderr)
 
 
+def onnx_time(result: dict[str, float], weights: Path, repeats: int) -> None:
+    """``estimate.onnx.<size>.s_per_frame``: the same frames through the ONNX export on onnxruntime
+    (what the Blender extension runs; ``estimate.<size>`` is torch), when the export matches."""
+    import importlib.util
+
+    from rvr_addon import onnxrun
+    from rvr_addon.estimate.infer import Estimator, load_estimator
+
+    if importlib.util.find_spec("onnxruntime") is None or not onnxrun.matching_onnx(weights, weights.with_suffix(".onnx")):
+        print("no onnxruntime or no matching .onnx export: estimate.onnx.* skipped", file=sys.stderr)
+        return
+    est = Estimator(load_estimator(weights, backend="onnx"))
+    result["estimate.onnx.threads"] = float(onnxrun.threads())
+    for name, (w, h) in SIZES.items():
+        frame = picture(w, h)
+        times = time_calls(lambda: est(frame), repeats)
+        result[f"estimate.onnx.{name}.s_per_frame"] = round(statistics.median(times), 4)
+        print(f"onnx {name} {w}x{h}: median {statistics.median(times):.3f} s, min {min(times):.3f} s", file=sys.stderr)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=7)
@@ -247,6 +267,7 @@ def main() -> None:
             result[f"estimate.{name}.min_s_per_frame"] = round(min(times), 4)
             print(f"{name} {w}x{h}: median {statistics.median(times):.3f} s, min {min(times):.3f} s "
                   f"over {len(times)}", file=sys.stderr)
+        onnx_time(result, Path(weights), args.repeats)
         if not args.no_job:
             frames = Path(tmp) / "frames"
             frames.mkdir()

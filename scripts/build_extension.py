@@ -9,13 +9,14 @@ extension.
 
 Two builds, same extension id and version (installing one replaces the other):
 
-* default (153 MB): the wheels blender_manifest.toml lists, the binary dependencies Blender
+* default (165.6 MB): the wheels blender_manifest.toml lists, the binary dependencies Blender
   does not ship (OpenCV-contrib, OpenEXR, imageio-ffmpeg with its ffmpeg, tqdm; mediapipe
-  without its unused models, absl-py, attrs, flatbuffers, protobuf for the people depth cue). Without
-  torch, Analyze needs the strip's Disparity maps (depth from elsewhere), or torch importable
-  in Blender's Python; Track, Auto Focus and Render do not need torch. CI builds this one.
-* ``--with-torch`` (about 353 MB): also torch 2.13.0 CPU and its dependencies (the files
-  scripts/torch_wheels.txt lists), so Analyze runs the shipped estimator in a stock Blender.
+  without its unused models, absl-py, attrs, flatbuffers, protobuf for the people depth cue;
+  onnxruntime without its C API library and tools, which runs the estimator and AF-Net from their
+  ONNX exports; webrtcvad for the Conversation preset). Analyze, Track, every Auto Focus preset
+  and Render run without torch (tests/blender/test_vse_install.py). CI builds this one.
+* ``--with-torch`` (about 365 MB): also torch 2.13.0 CPU and its dependencies (the files
+  scripts/torch_wheels.txt lists), for running one's own ``.pt`` weights in Blender.
   Blender's builder reads the wheel list from the manifest of the source folder, so this
   build stages a copy of the extension with that list extended and builds from the copy;
   the repository's manifest keeps the light list.

@@ -80,9 +80,11 @@ def load_estimator(path: str | Path, backend: str | None = None) -> LoadedModel:
     path: an exported weights file or training checkpoint (``.pt``, read with
     ``weights_only=True``), or an ONNX export (``.onnx``). backend: ``torch``, ``onnx`` or
     ``auto`` (None: ``$RVR_INFERENCE``, else ``auto``, :mod:`rvr_addon.onnxrun`): ``auto`` runs a
-    ``.pt`` with torch when torch is importable (faster on this CPU: 0.029 vs 0.044 s a 640x360
-    frame, same outputs within 1e-5 px), else the ``.onnx`` beside it, exported from it, with ONNX
-    Runtime; a missing ``.pt`` whose ``.onnx`` is there (the Blender extension) runs the ONNX.
+    ``.pt`` with torch when torch is importable (as fast at 360p and faster at 1080p on this
+    2-core CPU: 0.025 vs 0.027 s and 0.171 vs 0.205 s a frame, ``bench/estimate_bench.py``
+    ``estimate.onnx.*``; same outputs within 1e-5 px), else the ``.onnx`` beside it, exported
+    from it, with ONNX Runtime; a missing ``.pt`` whose ``.onnx`` is there (the Blender
+    extension) runs the ONNX.
 
     Raises InputError naming the file when it is missing, corrupt, or not estimator weights, or
     when neither torch nor onnxruntime can run it (with the fix).

@@ -85,13 +85,15 @@ def bilateral_slice(grid: np.ndarray, guide: np.ndarray, extent: tuple[float, fl
 
     depth, hg, wg = grid.shape
     h, w = guide.shape
-    hp, wp = h / extent[0], w / extent[1]
-    if depth <= 512 and abs(hp - round(hp)) < 1e-6 and abs(wp - round(wp)) < 1e-6:
-        # the guide is the padded frame's top-left corner: sampling at the cell-centred positions
-        # is a bilinear resize of the grid to the padded size (OpenCV clamps at the border too)
+    if depth <= 512:
+        # sampling at the cell-centred positions is a bilinear resize of the grid by the factor
+        # (frame px per cell) given as fx/fy, so OpenCV maps pixel x to cell (x + 0.5) / fx - 0.5
+        # exactly (and clamps at the border, as grid_sample's border mode); the frame is the
+        # resized grid's top-left corner
         cells = np.ascontiguousarray(grid.transpose(1, 2, 0), dtype=np.float32)
-        space = cv2.resize(cells, (int(round(wp)), int(round(hp))), interpolation=cv2.INTER_LINEAR)
-        space = space.reshape(int(round(hp)), int(round(wp)), depth)[:h, :w]  # (H, W, D)
+        fx, fy = w / (extent[1] * wg), h / (extent[0] * hg)
+        space = cv2.resize(cells, (0, 0), fx=fx, fy=fy, interpolation=cv2.INTER_LINEAR)
+        space = space.reshape(space.shape[0], space.shape[1], depth)[:h, :w]  # (H, W, D)
     else:
         y0, y1, wy = _axis(h, hg, extent[0])
         x0, x1, wx = _axis(w, wg, extent[1])
