@@ -124,3 +124,18 @@ def test_no_torch_uses_the_exports(monkeypatch):
     monkeypatch.setattr(onnxrun, "has_torch", lambda: False)
     assert load_estimator(SHIPPED_WEIGHTS).backend == "onnx"
     assert type(load_afnet()[0]).__name__ == "OnnxAFNet"
+
+
+def test_neither_runtime_names_the_fix(monkeypatch):
+    """No torch and no onnxruntime: an InputError naming what to install, never an ImportError."""
+    monkeypatch.setattr(onnxrun, "has_torch", lambda: False)
+    monkeypatch.setattr(onnxrun, "has_onnxruntime", lambda: False)
+    with pytest.raises(onnxrun.InputError, match="onnxruntime"):
+        load_estimator(SHIPPED_WEIGHTS)
+    with pytest.raises(onnxrun.InputError, match="onnxruntime"):
+        load_afnet()
+    from rvr_addon.estimate.infer import estimator_unavailable
+
+    assert "onnxruntime" in estimator_unavailable(SHIPPED_WEIGHTS)
+    monkeypatch.undo()
+    assert estimator_unavailable(SHIPPED_WEIGHTS) == "" and estimator_unavailable(SHIPPED_ONNX) == ""
