@@ -11,7 +11,7 @@ from ..cli import add_depth_method_args, on_interrupt
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``batch`` sub-command to the ``rvr`` sub-parsers."""
     from ..laaf.commands import _afnet_args, _pull_args
-    from ..laaf.presets import PRESETS
+    from ..laaf.presets import DEFAULT_PRESET, PRESETS
     from ..temporal.settings import TemporalSettings
     from . import FORMATS
 
@@ -45,9 +45,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("-M", "--temporal-frames", dest="m", type=int, default=d.m, metavar="M",
                    help="temporal filter: neighbouring frames in the window (default %(default)s)")
     g = p.add_argument_group("autofocus")
-    g.add_argument("--preset", choices=tuple(PRESETS), default="conversation",
-                   help="LAAF AI-assist preset (default %(default)s; without audio it falls back to faces), or "
-                        "learned (AF-Net)")
+    g.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
+                   help="LAAF AI-assist preset (default %(default)s: reads the clip and picks; conversation without "
+                        "audio falls back to faces), or learned (AF-Net)")
     _afnet_args(g)
     g.add_argument("--look-ahead", type=float, default=2.0, metavar="S", help="look-ahead window in seconds (default 2)")
     g.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do)")

@@ -30,7 +30,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterable, Iterator
 
@@ -40,6 +40,7 @@ from ..errors import InputError
 from ..io.paths import temp_sibling
 from ..io.video import ClipInfo, probe_clip
 from .combine import FALLBACKS, PRESETS
+from .presets import AUTO
 from .depth import DisparitySource
 from .detectors.base import AnalysisFrame, FocusDetector
 from .nft import Box
@@ -117,6 +118,7 @@ class DetectorSet:
     combo: tuple[str, ...]
     preset_used: str | None
     fallback_note: str = ""
+    auto: dict | None = None  # preset 'auto': {"chose", "why", "reading"}
 
 
 def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whole_clip: bool = True) -> DetectorSet:
@@ -124,6 +126,13 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     without what only the whole-clip task uses (the audio track, AF-Net)."""
     if s.preset is None:
         return DetectorSet({}, (), None)
+    preset, auto, audio = s.preset, None, None
+    if preset == AUTO:  # read the clip, pick a preset (the same for every chunk)
+        from .auto import resolve
+
+        preset, why, reading, audio = resolve(s, setup)
+        auto = {"chose": preset, "why": why, "reading": reading}
+        s = replace(s, preset=preset)
     names = list(PRESETS[s.preset])
     detectors: dict[str, FocusDetector] = {}
     if "afnet" in names and whole_clip:
@@ -151,7 +160,8 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     preset_used, note = s.preset, ""
     if "speech" in names or speaker:  # speaker: AF-Net's NFTs take the speaker's region (lookahead)
         media = clip.path if clip.kind == "video" and clip.has_audio and whole_clip else None
-        speech = SpeechDetector(face, setup.fps, setup.n, media=media, start_frame=setup.start,
+        speech = SpeechDetector(face, setup.fps, setup.n, media=media, audio=audio if media is not None else None,
+                                start_frame=setup.start,
                                 window_s=s.speech_window_s, causal=causal)
         if "speech" in names:
             detectors["speech"] = speech
@@ -168,7 +178,7 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
             detectors["speech"] = speech
         elif "face" not in names:
             del detectors["face"]  # the sound does not decode: AF-Net's maps only
-    return DetectorSet(detectors, tuple(names), preset_used, note)
+    return DetectorSet(detectors, tuple(names), preset_used, note, auto)
 
 
 def analysis_start(a: int, face_every: int | None) -> int:

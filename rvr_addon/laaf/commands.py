@@ -52,7 +52,7 @@ def _pull(args: argparse.Namespace):
 
 def add_autofocus_parser(sub) -> None:
     """``rvr autofocus INPUT (--cache CACHE | --depth DEPTH) --preset P -o focus.json``."""
-    from .presets import PRESETS
+    from .presets import DEFAULT_PRESET, PRESETS
 
     p = sub.add_parser("autofocus", help="look-ahead autofocus: decide where and when to focus (focus.json)",
                        description="Look-Ahead Autofocus (paper section 5): detectors (face, saliency, action, "
@@ -65,8 +65,10 @@ def add_autofocus_parser(sub) -> None:
     p.add_argument("--depth-scale", type=float, default=1.0, help="with --depth: multiply the maps")
     p.add_argument("--depth-offset", type=float, default=0.0, help="with --depth: then add this")
     p.add_argument("--preset", choices=tuple(PRESETS), default=None,
-                   help="AI-assist preset: action={action,saliency}, conversation={speech,face}, faces, salient; "
-                        "or learned: AF-Net predicts the NFTs of any video (needs trained weights, --afnet-weights)")
+                   help=f"AI-assist preset (default {DEFAULT_PRESET} unless only --targets are given): auto reads the "
+                        "clip (speech? faces? motion?) and picks one of action={action,saliency}, "
+                        "conversation={speech,face}, faces, salient; or learned: AF-Net predicts the NFTs of any "
+                        "video (needs trained weights, --afnet-weights)")
     _afnet_args(p)
     p.add_argument("--targets", type=Path, help="manual NFTs (JSON: [{t, x, y, box, source}], 0-based frames)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
@@ -124,9 +126,12 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
             cut_list = parse_cuts(args.cuts)
         except (ValueError, OSError) as ex:
             raise RvrError(f"--cuts: {ex}") from None
+    from .presets import DEFAULT_PRESET
+
+    preset = args.preset if args.preset is not None or args.targets is not None else DEFAULT_PRESET
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,
-        depth_offset=args.depth_offset, preset=args.preset, targets=args.targets, window_s=args.window,
+        depth_offset=args.depth_offset, preset=preset, targets=args.targets, window_s=args.window,
         causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
         min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
         afnet_threshold=args.afnet_threshold, afnet_speaker=args.afnet_region == "speaker", cuts=cut_list,
@@ -145,6 +150,9 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         print(f"wrote {args.plot}")
     nfts = ", ".join(f"{n.t + result.start}({n.source})" for n in result.nfts)
     note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""
+    auto = result.settings.get("auto")
+    if auto:
+        note += f"; preset auto chose {auto['chose']} ({auto['why']})"
     if result.cuts:
         note += f"; shot cuts at {', '.join(str(c + result.start) for c in result.cuts)}"
     print(f"wrote {args.output}: {len(result.focus)} frames, {len(result.keys)} keys, NFTs at {nfts}{note} "

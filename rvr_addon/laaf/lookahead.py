@@ -48,7 +48,7 @@ from ..temporal.cuts import CutDetector
 from .analysis import (FrameAnalyser, FrameMeasurement, build_detectors, check_frame_size, measured_names, open_clip,
                        shrink)
 from .calm import DEFAULT_CALM, calm_settings, check_calm, deadband, persists
-from .combine import PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
+from .combine import DEFAULT_PRESET, PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
 from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
 from .focus_reading import read_focus
 from .keyframes import Key, keyframes
@@ -67,7 +67,8 @@ class AutofocusSettings:
     """Everything ``rvr autofocus`` needs.
 
     input: video or image sequence. cache / depth: the disparity source (one of them).
-    preset: 'action', 'conversation', 'faces', 'salient' or None (manual NFTs only).
+    preset: 'auto' (the default: reads the clip and picks, :mod:`.auto`), 'action',
+    'conversation', 'faces', 'salient', 'learned' or None (manual NFTs only).
     targets / nfts: manual NFTs (JSON file or list, native px, 0-based frames).
     window_s: look-ahead in seconds (default 2.0); causal: window 0.
     pull: pull length, lead, profile, hold. aperture: aperture scale of the track (>= 0).
@@ -91,7 +92,7 @@ class AutofocusSettings:
     depth: Path | None = None
     depth_scale: float = 1.0
     depth_offset: float = 0.0
-    preset: str | None = "conversation"
+    preset: str | None = DEFAULT_PRESET
     targets: Path | None = None
     nfts: list[NFT] | None = None
     window_s: float = 2.0
@@ -196,6 +197,7 @@ class AutofocusJob:
         self._combo: tuple[str, ...] = built.combo
         self.preset_used: str | None = built.preset_used
         self.fallback_note = built.fallback_note
+        self.auto = built.auto
         speech = self.detectors.get("speech")
         measured = measured_names(self.detectors, speech is not None and speech.available)
         self.analyser = FrameAnalyser(self.detectors, measured)
@@ -710,6 +712,7 @@ class AutofocusJob:
                     "lead_frames": s.pull.lead_frames, "profile": s.pull.profile, "hold_frames": s.pull.hold_frames,
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
                     "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
+                    "auto": self.auto,
                     "cuts": [c + self.start for c in self.cuts], "cuts_source": self.cuts_source,
                     "calm": {"calm": self.calm.calm, "step_factor": round(self.calm.step_factor, 3),
                              "min_step_effective": round(s.min_step * self.calm.step_factor, 4),

@@ -5,6 +5,7 @@ the AI-assist presets (:mod:`.combine`), the pull profiles (:mod:`.puller`) and 
 from __future__ import annotations
 
 PRESETS: dict[str, tuple[str, ...]] = {
+    "auto": ("speech", "face", "action", "saliency"),  # reads the clip, picks one of the others (.auto)
     "action": ("action", "saliency"),
     "conversation": ("speech", "face"),
     "faces": ("face",),
@@ -12,7 +13,9 @@ PRESETS: dict[str, tuple[str, ...]] = {
     "learned": ("afnet",),  # AF-Net (rvr_addon/afnet): proposes NFTs itself, needs trained weights
 }
 """Detector names of each AI-assist preset."""
-DEFAULT_PRESET = "conversation"
+AUTO = "auto"
+"""The preset that reads the clip (speech? faces? motion?) and picks one of the others (:mod:`.auto`)."""
+DEFAULT_PRESET = AUTO
 """The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
 
 DEFAULT_CALM = 0.5
