@@ -9,7 +9,8 @@ estimator weights exist yet, and disparity estimation is excluded by the goal): 
 a vertical ramp from 6 px at the top to -2 px at the bottom (the floor comes nearer), read
 through ``--depth`` like any user map. Timed: ``AutofocusJob.run`` end to end -- decoding, the
 analysis resize, disparity read, every detector, combination, K-means, step detection, KCF
-tracking, the puller and the keyframe fit. Presets: conversation (face + speech, the heaviest:
+tracking, the puller and the keyframe fit (and, since issue 23, the shot-cut detector). Presets: auto (the
+default: reads the clip first, then runs what it picks: ``laaf.auto.*``), conversation (face + speech, the heaviest:
 dlib HOG every 6th frame), action (DIS flow + parallax fit + saliency) and, when AF-Net weights
 are shipped, learned (AF-Net with the clip's sound, and the speech detector for the speaker of an
 NFT near a voice onset: ``laaf.learned.*``) and learned_map (AF-Net alone, ``--afnet-region map``:
@@ -72,7 +73,7 @@ def main() -> int:
         fps_all = []
         from rvr_addon.afnet.infer import DEFAULT_WEIGHTS
 
-        presets = ("conversation", "action") + (("learned", "learned_map") if DEFAULT_WEIGHTS.is_file() else ())
+        presets = ("auto", "conversation", "action") + (("learned", "learned_map") if DEFAULT_WEIGHTS.is_file() else ())
         for preset in presets:
             for causal in (False, True):
                 job = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset=preset.replace("_map", ""),

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import bpy
 
+from ..rvr_addon.laaf.presets import DEFAULT_PRESET
 from . import compat, prefs
 
 COMMANDS = ("analyze", "autofocus", "render")
@@ -58,8 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("autofocus", help="add targets, then Auto Focus with a preset (or only Track)")
     common(p)
-    p.add_argument("--preset", choices=("action", "conversation", "faces", "salient", "none"), default="action",
-                   help="detector preset; none = only track the strip's targets (default %(default)s)")
+    p.add_argument("--preset", choices=("auto", "action", "conversation", "faces", "salient", "none"),
+                   default=DEFAULT_PRESET,
+                   help="detector preset; auto reads the clip and picks; none = only track the strip's targets "
+                        "(default %(default)s)")
     p.add_argument("--window", type=float, help="look-ahead in seconds (default: the strip's)")
     p.add_argument("--target", type=_target, action="append", default=[], metavar="FRAME,X,Y[,W,H]",
                    help="add a manual focus target first (scene frame, clip px); repeatable")

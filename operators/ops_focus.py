@@ -169,7 +169,7 @@ def plan_focus(scene, strip: "Strip", preset: str | None, window_s: float) -> Fo
     settings = AutofocusSettings(
         input=source.path, cache=cache, depth=depth, preset=preset, nfts=[engine_nft(i) for i in kept],
         window_s=max(float(window_s), 0.0), causal=window_s <= 0, pull=pull, aperture=aperture,
-        start=span.clip_start, stop=span.clip_stop, fps=source.fps,
+        start=span.clip_start, stop=span.clip_stop, fps=source.fps, calm=float(getattr(rvr, "focus_calm", 0.5)),
         afnet_weights=prefs.afnet_weights_file(prefs.get()) if preset == "learned" else None,
         afnet_speaker=prefs.get().afnet_region != "MAP")
     return FocusPlan(source, settings, preset is not None, aperture)

@@ -16,6 +16,7 @@ import bpy
 from bpy.props import (BoolProperty, CollectionProperty, EnumProperty, FloatProperty, FloatVectorProperty,
                        IntProperty, PointerProperty, StringProperty)
 
+from ..rvr_addon.laaf.presets import DEFAULT_CALM
 from . import compat
 
 APERTURE_SHAPES = (
@@ -43,7 +44,9 @@ AUTOFOCUS_PRESETS = (
     ("salient", "Salient", "The most salient region"),
     ("learned", "Learned (AF-Net)", "Any scene: the learned look-ahead autofocus model (AF-Net weights in Preferences, "
      "else the shipped ones)"),
+    ("auto", "Auto", "Reads the clip (speech? faces? motion?) and picks one of the others; the choice is reported"),
 )
+"""(``auto`` is last so that strips saved before it keep their preset.)"""
 
 PULL_PROFILES = (
     ("linear", "Linear", "Constant speed (the paper)"),
@@ -186,8 +189,11 @@ class RVR_PG_strip(bpy.types.PropertyGroup):
                                description="How the focus moves during a pull")
     hold_frames: IntProperty(name="Hold", description="After a subject is lost, hold its focus this long before "
                                                       "releasing to the next target", default=12, min=0)
-    autofocus_preset: EnumProperty(name="Preset", items=AUTOFOCUS_PRESETS, default="action",
+    autofocus_preset: EnumProperty(name="Preset", items=AUTOFOCUS_PRESETS, default="auto",
                                    description="What Auto Focus looks for")
+    focus_calm: FloatProperty(name="Calm", default=DEFAULT_CALM, min=0.0, max=1.0, subtype="FACTOR",
+                              description="Calm <-> responsive: 1 holds focus (minimum hold, hysteresis, a cost for "
+                                          "each change), 0 pulls on every change the detectors see")
     lookahead_s: FloatProperty(name="Look-Ahead (s)", description="Auto Focus may look this far into the future "
                                                               "(seconds; 0 = causal, like a camera)",
                                default=2.0, min=0.0, soft_max=10.0, step=50, precision=2)

@@ -172,6 +172,7 @@ class RVR_PT_targets(_RefocusTab, bpy.types.Panel):
         layout.operator("rvr.track_targets", icon="TRACKER")
         col = layout.column()
         col.prop(rvr, "autofocus_preset")
+        col.prop(rvr, "focus_calm")
         col.prop(rvr, "lookahead_s")
         layout.operator("rvr.auto_focus", icon="VIEWZOOM")
 

@@ -242,3 +242,18 @@ def test_auto_focus_learned_with_the_shipped_weights(registered, analysed, use_p
     assert _fc(strip) is not None and len(_fc(strip).keyframe_points) >= 2
     assert strip.rvr.nfts and {n.source for n in strip.rvr.nfts} <= {"afnet", "afnet_speech", "face", "saliency",
                                                                        "initial"}
+
+
+def test_calm_knob_and_auto_preset_reach_the_engine(registered, analysed):
+    """Issue 23: the strip's Calm (default the engine's) and the Auto preset (the default) go to AutofocusSettings."""
+    import importlib
+
+    from conftest import PACKAGE
+
+    ops_focus = importlib.import_module(f"{PACKAGE}.operators.ops_focus")
+    presets = importlib.import_module(f"{PACKAGE}.rvr_addon.laaf.presets")
+    assert analysed.rvr.autofocus_preset == presets.DEFAULT_PRESET == "auto"
+    assert analysed.rvr.focus_calm == pytest.approx(presets.DEFAULT_CALM)
+    analysed.rvr.focus_calm = 0.9
+    plan = ops_focus.plan_focus(bpy.context.scene, analysed, analysed.rvr.autofocus_preset, 0.5)
+    assert plan.settings.preset == "auto" and plan.settings.calm == pytest.approx(0.9)

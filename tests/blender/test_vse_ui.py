@@ -48,7 +48,7 @@ def test_panels_draw(registered, movie_strip):
     bpy.types.RVR_PT_targets.draw(type("P", (), {"layout": rec})(), bpy.context)
     names = {c[1] for c in rec.calls}
     assert {"RVR_UL_nfts", "rvr.add_focus_target", "rvr.track_targets", "rvr.auto_focus", "pull_frames",
-            "lead_frames", "pull_profile", "autofocus_preset", "lookahead_s", "box", "keep"} <= names
+            "lead_frames", "pull_profile", "autofocus_preset", "focus_calm", "lookahead_s", "box", "keep"} <= names
     rec = LayoutRecorder()
     item = movie_strip.rvr.nfts[0]
     bpy.types.RVR_UL_nfts.draw_item(None, bpy.context, rec, movie_strip.rvr, item, 0, None, "", 0)
