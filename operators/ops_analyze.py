@@ -251,8 +251,8 @@ class RVR_OT_analyze(JobOperator, bpy.types.Operator):
     def _apply(self, context, plan: AnalyzePlan, job: AnalyzeJob) -> None:
         apply_analyze(plan.source.scene_name, plan)
         note = "" if plan.weights is not None else " (disparity from the strip's maps; no HDR: no estimator weights)"
+        notes.report(self.report)  # first: the summary stays the last report (the status bar's)
         self.report({"INFO"}, f"Analyzed '{plan.source.strip_name}': {job.summary()}{note}; cache {plan.cache}")
-        notes.report(self.report)
 
 
 classes = (RVR_OT_analyze,)

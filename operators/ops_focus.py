@@ -276,9 +276,9 @@ class _FocusJobOperator(JobOperator):
         result = job.result
         note = f"; {result.settings['fallback']}" if result.settings.get("fallback") else ""
         hand = f", kept {counts['hand_keys']} keys you set by hand" if counts["hand_keys"] else ""
+        notes.report(self.report)  # first: the summary stays the last report (the status bar's)
         self.report({"INFO"}, f"{what} '{plan.source.strip_name}': {counts['targets']} targets "
                               f"({counts['added']} new), {counts['keys']} focus keys{hand}{note}")
-        notes.report(self.report)
 
 
 class RVR_OT_track_targets(_FocusJobOperator, bpy.types.Operator):

@@ -96,6 +96,7 @@ def no_shipped_weights(addon_package, monkeypatch, tmp_path):
     infer = importlib.import_module(f"{PACKAGE}.rvr_addon.estimate.infer")
     missing = tmp_path / "weights" / "estimator.pt"
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", missing)
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", missing.with_suffix(".onnx"))  # nor their ONNX export
     return missing
 
 

@@ -195,6 +195,7 @@ def test_missing_weights_name_the_file_before_any_cluster_starts(tmp_path, data,
     import rvr_addon.estimate.infer as infer
 
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "weights" / "estimator.pt")
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", tmp_path / "weights" / "estimator.onnx")  # its export is a fallback
     with pytest.raises(InputError, match=r"weights/estimator\.pt"):
         run_batch([data["a"]], BatchSettings(output=tmp_path / "out"), progress=False)
     assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--weights", str(tmp_path / "nope.pt")]) == 2

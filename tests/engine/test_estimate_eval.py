@@ -117,6 +117,7 @@ def test_eval_errors_name_the_weights_and_the_fix(tmp_path, heldout, capsys, mon
     from rvr_addon.estimate import infer
 
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", tmp_path / "gone" / "estimator.onnx")  # its export is a fallback
     with pytest.raises(InputError, match="weights file is missing"):
         evaluate(EvalSettings(output=tmp_path / "r", data=[heldout]))
     with pytest.raises(InputError, match="--data"):
@@ -146,6 +147,7 @@ def test_ablation_estimator_rows_unavailable_without_weights_and_run_with_them(t
     from sintel_eval.variants import select
 
     monkeypatch.setattr(infer, "SHIPPED_WEIGHTS", tmp_path / "gone" / "estimator.pt")
+    monkeypatch.setattr(infer, "SHIPPED_ONNX", tmp_path / "gone" / "estimator.onnx")  # its export is a fallback
     estimator_inputs.configure(None)
     rows = select(["estimated_disparity", "estimated_hdr"])
     assert all("no trained estimator weights" in (v.unavailable() or "") for v in rows)
