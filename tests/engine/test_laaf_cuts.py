@@ -170,3 +170,27 @@ def test_real_shots_concatenated(tmp_path):
             assert all((k < 30) == (n_.t < 30) for k in boxes)
         out = write_focus_file(tmp_path / f"{preset}.json", r)
         assert json.loads(out.read_text())["cuts"] == [30]
+
+
+def test_focus_file_says_per_frame_where_focus_is(two_shots, tmp_path):
+    """focus_on: the governing target, its source, its box and the state of every frame, and the
+    same as segments; the old reader still reads the file."""
+    r = _run(two_shots)
+    doc = json.loads(write_focus_file(tmp_path / "f.json", r).read_text())
+    on = doc["focus_on"]
+    n = len(r.focus)
+    assert len(on["target"]) == len(on["source"]) == len(on["box"]) == len(on["state"]) == n
+    assert on["state"][CUT] == "cut" and on["target"][CUT] == next(i for i, x in enumerate(r.nfts) if x.t == CUT)
+    assert on["target"][CUT - 1] < on["target"][CUT]
+    for k in range(n):
+        i = on["target"][k]
+        assert on["source"][k] == doc["nfts"][i]["source"]
+        if on["box"][k] is not None:  # the box is the governing target's tracked box on that frame
+            assert r.boxes[i][k][1]
+    assert "pull" in on["state"] and "hold" in on["state"]
+    segs = on["segments"]
+    assert segs[0]["start"] == 0 and segs[-1]["stop"] == n
+    assert all(a["stop"] == b["start"] for a, b in zip(segs, segs[1:]))
+    assert any(s["state"] == "cut" and s["start"] == CUT for s in segs)
+    track = load_track(tmp_path / "f.json")
+    assert len(track.frames) == n
