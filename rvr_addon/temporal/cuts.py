@@ -57,6 +57,15 @@ def link_checks(flow: fl.DISFlow, gray_a: np.ndarray, gray_b: np.ndarray, color_
     return LinkChecks(f_ab, f_ba, ok_ab, ok_ba, fail)
 
 
+def quiet_limit(s: TemporalSettings) -> float:
+    """Mean absolute colour change (0..1) of a frame pair below which it cannot be a cut, so
+    :class:`CutDetector` skips the flows: with the zero flow, a pixel fails the photometric
+    check only where its change exceeds ``photometric_tol``, and by Markov's inequality at most
+    mean / tol of the pixels do; below ``tol * cut_fraction / 2`` that is under half the share
+    a cut needs (the talking heads of an interview are mostly below it, a street is not)."""
+    return 0.5 * s.photometric_tol * s.cut_fraction
+
+
 class CutDetector:
     """Streaming cut detection: :meth:`push` RGB frames (uint8, any size, in order); it says
     whether each frame starts a new shot. max_side: longer side of the flow resolution (px;
@@ -85,6 +94,8 @@ class CutDetector:
             return False
         if prev[0] != cur[0]:
             self.fail.append(1.0)
+        elif (d := float(np.mean(np.abs(cur[2] - prev[2])))) < quiet_limit(self.settings):
+            self.fail.append(d / self.settings.photometric_tol)  # a bound, see quiet_limit
         else:
             self.fail.append(link_checks(self.flow, prev[1], cur[1], prev[2], cur[2], prev[3], cur[3],
                                          self.settings).fail_fraction)
