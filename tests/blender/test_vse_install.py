@@ -122,6 +122,9 @@ def focus_keys():
     fc = bag.fcurves.find('sequence_editor.strips_all["Clip"].rvr.focus_disparity')
     return [tuple(k.co) for k in fc.keyframe_points] if fc is not None else []
 keys = {"track": focus_keys()}
+props = importlib.import_module(pkg + ".operators.props")
+presets = list(dict.fromkeys(presets + [item[0] for item in props.AUTOFOCUS_PRESETS]))  # every one the UI offers
+result["presets"] = presets
 for preset in presets:
     ops[preset] = list(bpy.ops.rvr.auto_focus("EXEC_DEFAULT", preset=preset, lookahead_s=0.5))
     keys[preset] = focus_keys()
@@ -237,6 +240,8 @@ def test_zip_runs_every_preset_and_the_render_without_torch(tmp_path, vse_clip):
     from rvr_addon.estimate.infer import SHIPPED_WEIGHTS
 
     assert r["model"]["hash"] == onnxrun.file_hash(SHIPPED_WEIGHTS)  # the same cache key as torch's run
+    assert set(r["presets"]) >= set(presets) and len(r["presets"]) >= 6, r["presets"]
+    presets = r["presets"]
     for name in ["track", *presets]:
         keys = r["keys"][name]
         assert len(keys) >= 1 and all(1 <= f <= 12 for f, _ in keys), (name, keys)
