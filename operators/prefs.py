@@ -138,11 +138,15 @@ def afnet_weights_file(prefs) -> Path | None:
 
 
 def apply_threads(prefs) -> None:
-    """Limit torch and OpenCV to the preferred number of threads (0 = leave the defaults)."""
+    """Limit torch, ONNX Runtime and OpenCV to the preferred number of threads (0 = leave the defaults)."""
     n = int(prefs.threads)
     if n <= 0:
         return
+    import os
+
     import cv2
+
+    os.environ["RVR_ONNX_THREADS"] = str(n)  # read when an ONNX network is loaded (rvr_addon.onnxrun.threads)
 
     cv2.setNumThreads(n)
     try:
