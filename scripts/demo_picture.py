@@ -1,6 +1,6 @@
 """docs/demo.jpg, the README's picture: frames of the demo as ``input | refocused | depth``.
 
-    .venv/bin/rvr refocus --demo && .venv/bin/python scripts/demo_picture.py [--frames 45 110 215]
+    .venv/bin/rvr refocus --demo && .venv/bin/python scripts/demo_picture.py [--frames 40 110 170]
 
 Reads what ``rvr refocus --demo`` left in out/demo/ (the video, its focus file, the work folder).
 """
@@ -19,7 +19,7 @@ def main() -> int:
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--demo", type=Path, default=ROOT / "out" / "demo")
-    ap.add_argument("--frames", type=int, nargs="+", default=[45, 110, 215])
+    ap.add_argument("--frames", type=int, nargs="+", default=[40, 110, 170])
     ap.add_argument("-o", "--output", type=Path, default=ROOT / "docs" / "demo.jpg")
     args = ap.parse_args()
     video = args.demo / "bikes_refocused.mp4"
