@@ -435,8 +435,16 @@ class AutofocusJob:
         if any(e <= tg.nft.t and first <= tg.nft.t for tg in self.targets):
             log.debug("step at frame %d: focus moved on since; dropped", e)
             return
-        last = self._last_target_t(e)
         p = self.settings.pull
+        cut_tg = next((tg for tg in self.targets if first > 0 and tg.nft.t == first and tg.nft.detail.get("cut")), None)
+        if (cut_tg is not None and not self.causal and self.calm.hold_frames
+                and e - p.lead_frames - p.pull_frames < first + self.calm.hold_frames
+                and not any(first < tg.nft.t for tg in self.targets)):
+            # look-ahead, soon after a cut: if this subject is already there on the cut frame (tracked
+            # back to it), it is the shot's subject: focus on it on the cut itself
+            if self._commit(st, ingest, at_cut=cut_tg):
+                return
+        last = self._last_target_t(e)
         if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames:
             t_new = last + self.calm.hold_frames + p.lead_frames + p.pull_frames
             if t_new >= self.n:
@@ -509,7 +517,11 @@ class AutofocusJob:
         box = tuple(v / s for v in region.box)
         return NFT(region.x / s, region.y / s, t, box, source, known_at=known_at, subject=subject)
 
-    def _commit(self, step, ingest: int, search: range | None = None) -> None:
+    def _commit(self, step, ingest: int, search: range | None = None, at_cut: TargetState | None = None) -> bool:
+        """Make the NFT of a step (its region: the first of frames ``search``, default e..e+3,
+        whose level is near the step's new level); True if it was made. at_cut: the target of
+        the cut that starts the step's shot, replaced by this subject on the cut frame (a hard
+        change there) only if the subject is tracked back to the cut frame; else nothing is made."""
         e = step.frame
         region = None
         first, nxt = shot_bounds(e, self.cuts)
@@ -522,10 +534,10 @@ class AutofocusJob:
                 break
         if region is None:
             log.debug("step at frame %d has no region near its new level; skipped", e)
-            return
+            return False
         known_at = max(0, ingest - self.window)
         if any(abs(n.t - e) < self.settings.pull.pull_frames for n in self.manual):
-            return
+            return False
         outputs_tid = None
         speech = self.detectors.get("speech")
         if speech is not None and speech.available and "speech" in region.detectors:
@@ -534,7 +546,19 @@ class AutofocusJob:
         nft = NFT(nft.x, nft.y, nft.t, nft.box, nft.source, nft.known_at,
                   confidence=float(min(1.0, abs(step.after - step.before) / (2 * self.settings.min_step))),
                   subject=outputs_tid, detail={"level_before": round(step.before, 4), "level_after": round(step.after, 4)})
-        self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
+        if at_cut is not None:
+            c = at_cut.nft.t
+            nft = replace(nft, t=c, known_at=max(c - 1, 0), pull_frames=1, lead_frames=0,
+                          detail={**nft.detail, "cut": True, "subject_from_frame": int(e)})
+        tg = self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
+        if at_cut is not None:
+            if not np.isfinite(tg.level[at_cut.nft.t]):  # not there yet on the cut frame
+                self.targets.remove(tg)
+                return False
+            self.targets.remove(at_cut)
+            log.debug("the subject of the shot from frame %d is the one of frame %d: focus on it at the cut",
+                      at_cut.nft.t, e)
+        return True
 
     def _commit_learned(self, cand, ingest: int) -> None:
         """An NFT proposed by AF-Net: (frame t, frame q of its region, probability, region)."""
@@ -594,9 +618,9 @@ class AutofocusJob:
     def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:
         return read_focus(af.disparity, box, mask, prior=prior).value
 
-    def _add_target(self, nft: NFT, box: Box, t_box: int, ingest: int, mask=None) -> None:
+    def _add_target(self, nft: NFT, box: Box, t_box: int, ingest: int, mask=None) -> TargetState:
         """Start tracking a new target from frame t_box (analysis box), backwards over its pull
-        and forwards up to the newest frame in the buffer."""
+        and forwards up to the newest frame in the buffer; returns its state."""
         t0 = time.perf_counter()
         tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box)
         af = self._frame(t_box)
@@ -640,6 +664,7 @@ class AutofocusJob:
             if f is not None:
                 self._update_target(tg, f)
         self._timings["track_s"] += time.perf_counter() - t0
+        return tg
 
     def _update_target(self, tg: TargetState, af: AnalysisFrame) -> None:
         state = tg.tracker.update(af.rgb, af.t)

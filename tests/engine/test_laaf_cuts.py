@@ -194,3 +194,27 @@ def test_focus_file_says_per_frame_where_focus_is(two_shots, tmp_path):
     assert any(s["state"] == "cut" and s["start"] == CUT for s in segs)
     track = load_track(tmp_path / "f.json")
     assert len(track.frames) == n
+
+
+def test_lookahead_focuses_the_new_shots_subject_on_the_cut(tmp_path):
+    """A subject already in the new shot that the detectors only pick up a few frames later
+    (it starts moving at cut + 8) is focused on the cut frame itself (look-ahead), not pulled
+    to after it."""
+    fa, ma, _ = entering_square(n=CUT, enter=12)
+    w, h = 128, 72
+    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
+    obj = texture(20, 20, 8)
+    fb, mb = [], []
+    for k in range(40):
+        x0 = 30 + max(0, k - 8) * 2
+        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
+        f[26:46, x0:x0 + 20] = obj
+        d[26:46, x0:x0 + 20] = 2.0
+        fb.append(f)
+        mb.append(d)
+    clip = write_clip(tmp_path, fa + fb, ma + mb)
+    la = _run(clip)
+    assert la.cuts == [CUT] and la.focus[CUT - 1] == pytest.approx(0.0, abs=0.1)
+    assert la.focus[CUT] == pytest.approx(2.0, abs=0.2)
+    assert [n.t for n in la.nfts if n.t >= CUT] == [CUT]  # no pull after the cut: the cut found the subject
+    assert all(not (p.start < CUT < p.end) for p in la.composed.pulls)
