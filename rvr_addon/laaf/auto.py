@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -103,14 +104,19 @@ def choose_preset(r: ClipReading) -> tuple[str, str]:
 def read_clip(s, setup: "ClipSetup", audio: "AudioTrack | None" = None) -> tuple[ClipReading, "AudioTrack | None"]:
     """The reading of the run ``setup`` (frames start..stop of its clip) with the face backend
     of settings ``s``; also the run's AudioTrack (None without sound) for the speech detector.
-    Cached per clip, range and analysis size."""
+    Cached per clip (path, modification time and size), range and analysis size."""
     from ..io.video import iter_frames
     from .analysis import shrink
     from .detectors.base import AnalysisFrame
     from .detectors.face import FaceDetector
 
     clip = setup.clip
-    key = (str(clip.path), setup.start, setup.stop, setup.fps, tuple(setup.size), s.face_backend)
+    try:
+        st = Path(clip.path).stat()
+        stamp = (st.st_mtime_ns, st.st_size)
+    except OSError:
+        stamp = None
+    key = (str(clip.path), stamp, setup.start, setup.stop, setup.fps, tuple(setup.size), s.face_backend)
     if audio is None and clip.kind == "video" and clip.has_audio:
         audio = _audio(clip.path, setup)
     if key in _READINGS:
