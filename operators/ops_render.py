@@ -92,6 +92,10 @@ def plan_render(scene: "Scene", strip: "Strip") -> RenderPlan:
     if cache is None and not rvr.depth_path:
         raise InputError(f"strip '{strip.name}' has no disparity: run Analyze on it (Refocus panel), or set its "
                          "Disparity maps")
+    if fcurves.find_fcurve(strip, "focus_disparity") is None and not rvr.is_property_set("focus_disparity"):
+        # never focused: a render at the default Focus 0 would be a guess nobody made
+        raise InputError(f"strip '{strip.name}' has no focus yet: run Auto Focus (or add a focus target and Track, "
+                         "or set and key Focus) in the Refocus panel, then render")
     span = source.span
     # retimed: one output frame per scene frame (the clip frame shown there), track by output frame
     keyed_at = np.arange(span.count) if source.retimed else np.asarray(source.clip_frames)

@@ -132,6 +132,7 @@ def movie_strip(registered, saved_blend, vse_clip):
     strip = editor.strips.new_movie("Clip", str(vse_clip), channel=2, frame_start=11)
     editor.active_strip = strip
     strip.rvr.output_dir = "//renders/"
+    strip.rvr.focus_disparity = 0.0  # set by hand: Render refuses a strip whose focus nobody set
     return strip
 
 

@@ -23,6 +23,7 @@ def analysed(movie_strip, vse_depth, no_shipped_weights, use_prefs):
     movie_strip.rvr.depth_path = str(vse_depth)
     assert bpy.ops.rvr.analyze("EXEC_DEFAULT") == {"FINISHED"}
     assert bpy.ops.rvr.add_focus_target(x=50, y=28, w=8, h=8, frame=START + 6) == {"FINISHED"}
+    movie_strip.rvr.focus_disparity = 3.0  # focused by hand (Render refuses a strip never focused)
     return movie_strip
 
 

@@ -37,6 +37,7 @@ def image_strip(registered, factory_scene, clip, tmp_path):
     editor.active_strip = strip
     strip.rvr.depth_path = str(depth)
     strip.rvr.output_dir = str(tmp_path / "renders")
+    strip.rvr.focus_disparity = 0.0  # set by hand: Render refuses a strip whose focus nobody set
     return strip
 
 
@@ -235,3 +236,16 @@ def test_modal_cancel_changes_nothing(registered, factory_scene, image_strip, tm
 def test_invoke_in_background_runs_blocking(registered, factory_scene, image_strip):
     assert bpy.ops.rvr.render_strip("INVOKE_DEFAULT") == {"FINISHED"}
     assert "Clip [RVR]" in factory_scene.sequence_editor.strips_all
+
+
+def test_a_strip_never_focused_is_refused_naming_auto_focus(registered, factory_scene, image_strip, tmp_path):
+    """Render never guesses focus 0: no focus keys and a Focus nobody set -> an error naming the
+    fix, nothing written, no strip added; keyed or set focus renders."""
+    strip = image_strip
+    strip.rvr.property_unset("focus_disparity")
+    before = _strip_state(factory_scene)
+    with pytest.raises(RuntimeError, match="has no focus yet: run Auto Focus"):
+        bpy.ops.rvr.render_strip("EXEC_DEFAULT")
+    assert _strip_state(factory_scene) == before and not (tmp_path / "renders").exists()
+    strip.rvr.focus_disparity = 0.0  # the user's own choice, even the default value
+    assert bpy.ops.rvr.render_strip("EXEC_DEFAULT") == {"FINISHED"}
