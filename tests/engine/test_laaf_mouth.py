@@ -162,3 +162,21 @@ def test_on_a_real_clip_the_speaker_is_found_and_a_shifted_voice_is_not_hers():
     assert run_["backend"] == "mediapipe" and run_["metrics"]["mouth"] == "mesh"
     assert attributed_share(run_, 0.0) >= 0.8  # her mouth follows her voice
     assert attributed_share(run_, 0.4) <= 0.3  # the same voice 1.2 s later is not hers
+
+
+def test_a_listeners_barely_moving_mouth_does_not_compete_with_the_speakers():
+    """Issue 23: the listener's nearly closed mouth twitches in step with the voice now and then
+    (a chance correlation beating the speaker's); it moves far less than the articulating
+    speaker's mouth, so it is no candidate and the speaker (or nobody) is chosen, never the listener."""
+    env, voiced = voice(n=200, seed=4)
+    n = len(env)
+    rng = np.random.default_rng(7)
+    e = env / env.max()
+    talk = 0.05 + 0.4 * np.roll(e, 2) + rng.normal(0, 0.06, n)  # articulating, loosely in step
+    twitch = 0.02 + 0.1 * e + rng.normal(0, 0.004, n)  # small, but tightly in step
+    det = run({"A": talk, "B": twitch}, env, voiced)
+    decided = [det.decided[t][2] for t in range(40, n - 5)]
+    assert "B" not in decided and decided.count("A") >= 0.5 * len(decided)
+    off = SpeechDetector(FixedFaces(BOXES), FPS, n, audio=AudioTrack(voiced, env, voiced.astype(np.float32), FPS),
+                         sync=False, mouth="motion", mouth_rel_activity=0.0)
+    assert off.mouth_rel_activity == 0.0

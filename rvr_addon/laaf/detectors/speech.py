@@ -141,6 +141,10 @@ class SpeechDetector(FocusDetector):
     (module docstring). mouth_blend: a mesh-read face whose opening correlates >= mouth_gate
     scores the better of that and its motion cues (interview 0.59 correct vs 0.40, but a voice
     shifted off its speaker is attributed 0.66 of the time on lipnet vs 0.12: off by default).
+    mouth_rel_activity: a mesh-read face whose opening varies (std over the window) less than
+    this share of the most active mouth on screen is not a candidate: a listener's nearly
+    closed mouth, whose small movements can correlate by chance, does not compete with the
+    speaker's articulating one (0: off).
     sync: localise without faces by audio-visual synchrony on frames with no face track.
     sync_min_corr: smoothed block correlation the synchrony peak must reach (0..1).
     sync_margin: frames of silence around the voiced segment the synchrony window may use.
@@ -154,7 +158,7 @@ class SpeechDetector(FocusDetector):
                  sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
                  mouth: str = "auto", mouth_window_s: float = 1.5, mouth_min_corr: float = 0.3,
                  mouth_min_activity: float = 0.02, max_lag_s: float = 0.24, mouth_blend: bool = False,
-                 mouth_gate: float = 0.1) -> None:
+                 mouth_gate: float = 0.1, mouth_rel_activity: float = 0.7) -> None:
         if mouth not in MOUTH_MODES:
             raise ValueError(f"speech detector: mouth={mouth!r} is not one of {', '.join(MOUTH_MODES)}")
         self.faces = faces
@@ -168,6 +172,7 @@ class SpeechDetector(FocusDetector):
         self.mouth_min_activity = mouth_min_activity
         self.mouth_blend = mouth_blend
         self.mouth_gate = mouth_gate
+        self.mouth_rel_activity = mouth_rel_activity
         self.max_lag = max(0, int(round(max_lag_s * fps)))
         self.mesh = MediaPipeFaces(detect=False) if mouth == "mesh" or (mouth == "auto" and mediapipe_importable()) \
             else None
@@ -353,13 +358,16 @@ class SpeechDetector(FocusDetector):
                     if self.mouth_blend and motion is not None and r >= self.mouth_gate:
                         r = max(r, motion)
                     if by_mesh[1] >= self.mouth_min_activity:
-                        scored.append((r, box, tid, True))
+                        scored.append((r, box, tid, True, by_mesh[1]))
                     continue
                 if motion is not None:
-                    scored.append((motion, box, tid, False))
+                    scored.append((motion, box, tid, False, 0.0))
+            top = max((x[4] for x in scored if x[3]), default=0.0)
+            if self.mouth_rel_activity > 0 and top > 0:
+                scored = [x for x in scored if not x[3] or x[4] >= self.mouth_rel_activity * top]
             scored.sort(key=lambda x: -x[0])
             if scored:
-                r, box, tid, mesh = scored[0]
+                r, box, tid, mesh, _ = scored[0]
                 margin = r - scored[1][0] if len(scored) > 1 else r
                 if mesh:
                     if r >= self.mouth_min_corr and margin >= self.min_margin:
