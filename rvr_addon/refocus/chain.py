@@ -100,7 +100,10 @@ class JobChain:
             self.text = "done"
 
     def cancel(self) -> None:
-        """Stop: the stage in progress is cancelled (its own cancel keeps earlier results)."""
+        """Stop: the stage in progress is cancelled (its own cancel keeps earlier results).
+        Idempotent; after the end it changes nothing."""
+        if self._finished:
+            return
         job, self.job = self.job, None
         self._finished = True
         if job is not None and hasattr(job, "cancel"):

@@ -35,8 +35,8 @@ bar's ETA only)."""
 @dataclass
 class RefocusSettings:
     """input: the clip (video or image sequence). output: the refocused .mp4. cache: the clip's
-    work folder (None: ``OUT_DIR/rvr_cache/STEM-HASH``). preset: LAAF preset (None with
-    focus_on: a pinned subject only). focus_on: (x, y) px of the source clip to focus on and
+    work folder (None: ``OUT_DIR/rvr_cache/STEM-HASH``). preset: LAAF preset (None: the default
+    preset, or with focus_on only the pinned subject). focus_on: (x, y) px of the source clip to focus on and
     track from the first frame, instead of autofocus. aperture: aperture scale (1 = the
     reference lens wide open; 0 = no blur). spec: aperture shape. start / stop: frame range
     (0-based, stop exclusive). max_size: long side in px to work at (None/0: full size).
@@ -202,7 +202,12 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         stages.append(Stage("stabilize", STAGE_COST["stabilize"] * n * px, build_stabilize))
 
     focus_on = None if s.focus_on is None else (s.focus_on[0] * factor, s.focus_on[1] * factor)
-    focus_settings = {"preset": s.preset, "focus_on": focus_on, "aperture": s.aperture, "window_s": s.window_s,
+    preset = s.preset
+    if preset is None and focus_on is None:  # nothing pinned: the autofocus decides, with the default preset
+        from ..laaf.presets import DEFAULT_PRESET
+
+        preset = DEFAULT_PRESET
+    focus_settings = {"preset": preset, "focus_on": focus_on, "aperture": s.aperture, "window_s": s.window_s,
                       "causal": s.causal}
 
     def build_autofocus():
@@ -216,7 +221,7 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         nfts = None
         if focus_on is not None:
             nfts = [pinned_target(focus_on, run.size)]
-        return AutofocusJob(AutofocusSettings(input=run.clip, cache=run.cache, preset=s.preset, nfts=nfts,
+        return AutofocusJob(AutofocusSettings(input=run.clip, cache=run.cache, preset=preset, nfts=nfts,
                                               window_s=s.window_s, causal=s.causal, aperture=s.aperture,
                                               fps=s.fps))
 
@@ -278,11 +283,14 @@ class OneShot:
         if self.progress < 1.0:
             self.fn()
             self.progress = 1.0
+            self.text = "done"
         return False
 
     def cancel(self) -> None:
-        """Nothing to stop between steps."""
-        self.progress = 1.0
+        """Before its step: it will not run; after it: nothing changes."""
+        if self.progress < 1.0:
+            self.progress = 1.0
+            self.text = "cancelled before it ran"
 
 
 def pinned_target(point: tuple[float, float], size: tuple[int, int]):

@@ -86,8 +86,12 @@ class ProxyJob:
             raise
 
     def cancel(self) -> None:
-        """Stop; no partial file is left at the output path."""
+        """Stop; no partial file is left at the output path. Idempotent; after the end it changes
+        nothing."""
+        if self._finished:
+            return
         if self._writer is not None:
             self._writer.abort()
             self._writer = None
         self._finished = True
+        self.text = f"cancelled after {self.done} of {self.total} frames; no copy written"

@@ -85,8 +85,28 @@ def _training(tmp_path, inputs):
                                  checkpoint_every=2))
 
 
+def _refocus(tmp_path, inputs):
+    from rvr_addon.refocus.job import RefocusSettings, refocus_job
+
+    chain, _run = refocus_job(RefocusSettings(input=inputs[0], output=tmp_path / "refocused" / "r.mp4",
+                                              depth_method="network", max_size=None))
+    return chain
+
+
+def _working_copy(tmp_path, inputs):
+    from rvr_addon.refocus.proxy import ProxyJob
+
+    return ProxyJob(inputs[0], tmp_path / "copy" / "clip.mp4", max_size=20)
+
+
+def _before_after(tmp_path, inputs):
+    from rvr_addon.refocus.sidebyside import SideBySideJob
+
+    return SideBySideJob(inputs[0], inputs[0], tmp_path / "sbs" / "sbs.mp4")
+
+
 JOBS = {"estimate": _estimate, "stabilize": _stabilize, "render": _render, "autofocus": _autofocus,
-        "training": _training}
+        "training": _training, "refocus": _refocus, "working_copy": _working_copy, "before_after": _before_after}
 
 
 def test_the_protocol_names_what_a_job_lacks():
@@ -133,6 +153,11 @@ def test_every_job_cancels_cleanly_at_every_point(kind, point, tmp_path, inputs)
         assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no temp file, no temp folder
     if kind == "autofocus":
         assert (job.result is not None) == (point == "after_the_end")
+    for kind_, out in (("refocus", "refocused/r.mp4"), ("working_copy", "copy/clip.mp4"), ("before_after", "sbs/sbs.mp4")):
+        if kind == kind_:  # the video exists only when complete; nothing partial or hidden is left
+            assert (tmp_path / out).is_file() == (point == "after_the_end")
+            folder = (tmp_path / out).parent
+            assert not folder.exists() or not [p for p in folder.iterdir() if p.name.startswith(".")]
     if kind == "training" and point != "before_first_step":
         assert (tmp_path / "run" / "checkpoint.pt").is_file()
 
