@@ -65,6 +65,11 @@ class RefocusSettings:
     fps: float | None = None
     stabilize: bool = True
     preview_rows: int = 4
+    calm: float | None = None
+    """LAAF's calm <-> responsive knob 0..1 (None: its default)."""
+    cuts: list[int] | None = None
+    """Shot cuts given by the user (0-based frames of the source clip); None: detected."""
+    detect_cuts: bool = True
 
 
 def default_work_folder(source: Path, output: Path) -> Path:
@@ -207,8 +212,11 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         from ..laaf.presets import DEFAULT_PRESET
 
         preset = DEFAULT_PRESET
+    first = s.start if proxy else 0
+    cuts = None if s.cuts is None else [c - first for c in s.cuts if 0 < c - first < n]
+    calm = {} if s.calm is None else {"calm": s.calm}
     focus_settings = {"preset": preset, "focus_on": focus_on, "aperture": s.aperture, "window_s": s.window_s,
-                      "causal": s.causal}
+                      "causal": s.causal, "cuts": cuts, "detect_cuts": s.detect_cuts, **calm}
 
     def build_autofocus():
         from ..laaf.lookahead import AutofocusJob, AutofocusSettings
@@ -223,7 +231,7 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
             nfts = [pinned_target(focus_on, run.size)]
         return AutofocusJob(AutofocusSettings(input=run.clip, cache=run.cache, preset=preset, nfts=nfts,
                                               window_s=s.window_s, causal=s.causal, aperture=s.aperture,
-                                              fps=s.fps))
+                                              fps=s.fps, cuts=cuts, detect_cuts=s.detect_cuts, **calm))
 
     def finish_autofocus(job) -> None:
         from ..laaf.focusfile import write_focus_file

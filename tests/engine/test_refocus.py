@@ -175,3 +175,13 @@ def test_job_chain_runs_stages_in_turn_weights_progress_and_cancels_the_running_
     assert chain.frame_text() == "frame 1/3"
     chain.cancel()
     assert jobs[-1].cancelled and not chain.step() and "cancelled during a" in chain.text
+
+
+def test_cuts_and_calm_reach_the_autofocus_in_frames_of_the_working_copy(clip, tmp_path):
+    out = tmp_path / "c.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), "--start", "2", "--cuts", "5,9,40", "--calm", "0.2",
+                 *FAST]) == 0
+    doc = json.loads((tmp_path / "c.focus.json").read_text())
+    assert doc["cuts"] == [3, 7] and doc["settings"]["cuts_source"] == "given"  # 40 is beyond the clip
+    assert doc["settings"]["calm"]["calm"] == 0.2
+    assert main(["refocus", str(clip), "-o", str(out), "--calm", "2", *FAST]) == 2
