@@ -6,6 +6,7 @@ import logging
 from pathlib import Path
 
 from ..cli import add_depth_method_args, on_interrupt
+from ..errors import RvrError
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -53,6 +54,11 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do)")
     _pull_args(g)
     g.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the focus track (default 1)")
+    from ..laaf.presets import DEFAULT_CALM
+
+    g.add_argument("--calm", type=float, default=DEFAULT_CALM, metavar="0..1",
+                   help=f"calm <-> responsive focus (default {DEFAULT_CALM}; rvr autofocus --calm)")
+    g.add_argument("--no-cuts", action="store_true", help="detect no shot cuts (each clip is one shot)")
     g = p.add_argument_group("render")
     g.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the size (a proxy)")
     g.add_argument("--fps", type=float, help="frame rate of image-sequence inputs (default 24)")
@@ -84,6 +90,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
     from .settings import BatchSettings
 
     _check_afnet(args)
+    if not 0.0 <= args.calm <= 1.0:
+        raise RvrError(f"--calm {args.calm}: give a value from 0 (responsive) to 1 (calm)")
     settings = BatchSettings(
         output=args.output, cache_root=args.cache_root, weights=args.weights, depth_root=args.depth_root,
         depth_scale=args.depth_scale, depth_offset=args.depth_offset, depth_is_distance=args.depth_is_distance,
@@ -91,7 +99,8 @@ def cmd_batch(args: argparse.Namespace) -> int:
         window_s=args.look_ahead, causal=args.causal, pull=_pull(args), aperture=args.aperture, scale=args.scale,
         format=args.format, chunk_frames=args.chunk_frames, fps=args.fps, force=args.force, retries=args.retries,
         keep_cache=not args.drop_cache, afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold,
-        afnet_speaker=args.afnet_region == "speaker", depth_method=args.depth_method, hfov_deg=args.hfov)
+        afnet_speaker=args.afnet_region == "speaker", depth_method=args.depth_method, hfov_deg=args.hfov,
+        calm=args.calm, detect_cuts=not args.no_cuts)
     cluster = ClusterSettings(scheduler=args.scheduler, workers=args.workers,
                               threads_per_worker=args.threads_per_worker, task_threads=args.task_threads,
                               dashboard=not args.no_dashboard)

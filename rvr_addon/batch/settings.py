@@ -10,6 +10,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from .. import __version__
+from ..laaf.presets import DEFAULT_CALM, DEFAULT_PRESET
 from ..laaf.puller import PullSettings
 from ..temporal.settings import TemporalSettings
 from . import FORMATS  # noqa: F401 - re-exported: rvr_addon.batch.settings.FORMATS
@@ -33,6 +34,7 @@ class BatchSettings:
     deletes a clip's cache once its outputs are written (at 1080p a cache frame is tens of
     MB; keep it for clips to be edited further in Blender). afnet_weights, afnet_threshold,
     afnet_speaker: preset learned (``rvr autofocus --afnet-weights/--afnet-threshold/--afnet-region``).
+    calm, detect_cuts: ``rvr autofocus --calm`` and ``--no-cuts`` (shot cuts are detected per clip).
     depth_method, hfov_deg: ``rvr estimate --depth-method/--hfov`` (:mod:`rvr_addon.depth.system`;
     default auto: parallax where the camera translates, people, the network, fused; with
     depth_root the maps are the depth, method auto or external). The fused cues keep clip-wide
@@ -51,7 +53,7 @@ class BatchSettings:
     depth_is_distance: bool = False
     no_hdr: bool = False
     temporal: TemporalSettings = field(default_factory=TemporalSettings)
-    preset: str | None = "conversation"
+    preset: str | None = DEFAULT_PRESET
     window_s: float = 2.0
     causal: bool = False
     pull: PullSettings = field(default_factory=PullSettings)
@@ -68,6 +70,8 @@ class BatchSettings:
     afnet_speaker: bool = True
     depth_method: str = "auto"
     hfov_deg: float | None = None
+    calm: float = DEFAULT_CALM
+    detect_cuts: bool = True
 
     @property
     def clip_wide_estimate(self) -> bool:

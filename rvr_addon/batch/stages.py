@@ -217,7 +217,8 @@ def autofocus_settings(plan: ClipPlan, settings: BatchSettings):
     return AutofocusSettings(input=plan.source, cache=plan.cache, preset=settings.preset, window_s=settings.window_s,
                              causal=settings.causal, pull=settings.pull, aperture=settings.aperture, fps=settings.fps,
                              afnet_weights=settings.afnet_weights, afnet_threshold=settings.afnet_threshold,
-                             afnet_speaker=settings.afnet_speaker)
+                             afnet_speaker=settings.afnet_speaker, calm=settings.calm,
+                             detect_cuts=settings.detect_cuts)
 
 
 def laaf_measure(plan: ClipPlan, settings: BatchSettings, a: int, b: int, merged: dict) -> dict:

@@ -342,3 +342,14 @@ def test_cli_batch_depth_method_and_hfov_reach_the_settings(monkeypatch, tmp_pat
     assert seen["settings"].depth_method == "parallax" and seen["settings"].hfov_deg == 72.0
     assert main(["batch", str(data["a"]), "-o", str(tmp_path / "out"), "--no-dashboard", "-q"]) == 2
     assert seen["settings"].depth_method == "auto" and seen["settings"].hfov_deg is None
+
+
+def test_calm_cuts_and_the_default_preset_reach_each_clips_autofocus(tmp_path):
+    from rvr_addon.batch.settings import ClipPlan
+    from rvr_addon.batch.stages import autofocus_settings
+    from rvr_addon.laaf.presets import DEFAULT_PRESET
+
+    plan = ClipPlan(index=0, source=tmp_path / "a.mp4", name="a", cache=tmp_path / "c", work=tmp_path / "w")
+    s = autofocus_settings(plan, BatchSettings(output=tmp_path / "out", calm=0.2, detect_cuts=False))
+    assert (s.calm, s.detect_cuts, s.preset) == (0.2, False, DEFAULT_PRESET)
+    assert main(["batch", str(tmp_path / "a.mp4"), "-o", str(tmp_path / "out"), "--calm", "1.5"]) == 2
