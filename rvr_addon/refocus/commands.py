@@ -44,9 +44,13 @@ def add_parser(sub) -> None:
     p.add_argument("--preset", choices=tuple(PRESETS), default=None,
                    help=f"what the autofocus looks for (default {DEFAULT_PRESET}: it reads the clip and picks): "
                         "conversation (who speaks), faces, action (moving subjects), salient, learned (AF-Net)")
-    p.add_argument("--focus-on", type=parse_point, metavar="X,Y",
-                   help="pin focus on the subject at X,Y (px of the clip, first frame) and follow it, instead of "
-                        "autofocus")
+    focus = p.add_mutually_exclusive_group()
+    focus.add_argument("--focus-on", type=parse_point, metavar="X,Y",
+                       help="pin focus on the subject at X,Y (px of the clip, first frame) and follow it, instead "
+                            "of autofocus")
+    focus.add_argument("--track", type=Path, metavar="FOCUS.json",
+                       help="render with this focus file instead of autofocus: the OUT.focus.json of an earlier run "
+                            "with the same clip options, edited (frames and units of that run)")
     lens = p.add_mutually_exclusive_group()
     lens.add_argument("--aperture", type=float, help="blur strength: aperture scale (1 = a 50 mm f/2 lens wide open, "
                                                      "the default; 2 = twice the blur; 0 = none)")
@@ -142,7 +146,8 @@ def settings_from_args(args: argparse.Namespace):
         spec=ApertureSpec(shape=args.shape, blades=args.blades), start=args.start, stop=stop,
         max_size=args.max_size or None, side_by_side=side, preview=sheet, depth_method=args.depth_method,
         hfov_deg=args.hfov, window_s=args.window, causal=args.causal, weights=args.weights, fps=args.fps,
-        stabilize=not args.no_stabilize, calm=args.calm, cuts=cut_list, detect_cuts=not args.no_cuts)
+        stabilize=not args.no_stabilize, calm=args.calm, cuts=cut_list, detect_cuts=not args.no_cuts,
+        track=args.track)
 
 
 def run_with_progress(chain, quiet: bool) -> None:

@@ -70,6 +70,9 @@ class RefocusSettings:
     cuts: list[int] | None = None
     """Shot cuts given by the user (0-based frames of the source clip); None: detected."""
     detect_cuts: bool = True
+    track: Path | None = None
+    """A focus file or track to render with instead of running the autofocus (e.g. the
+    ``OUT.focus.json`` of an earlier run, edited); frames and units of the working copy."""
 
 
 def default_work_folder(source: Path, output: Path) -> Path:
@@ -154,6 +157,8 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     from .proxy import ProxyJob, needs_proxy
 
     check_outputs(s)
+    if s.track is not None and not Path(s.track).is_file():
+        raise InputError(f"--track {s.track}: no such focus file; give the OUT.focus.json of an earlier run")
     if not Path(s.input).exists():
         raise InputError(f"the clip '{s.input}' was not found; check the path")
     if not (s.aperture >= 0):
@@ -221,6 +226,10 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     def build_autofocus():
         from ..laaf.lookahead import AutofocusJob, AutofocusSettings
 
+        if s.track is not None:
+            run.focus_file = Path(s.track)
+            run.notes.append(f"focus: from {s.track} (no autofocus)")
+            return None
         key = focus_key(run.cache, focus_settings)
         run.focus_file = run.work / f"focus-{key}.json"
         if run.focus_file.is_file():
@@ -253,7 +262,8 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     def finish_render(job) -> None:
         run.outputs.append(Path(s.output))
         focus_copy = derived_path(Path(s.output), ".focus.json")
-        _copy_atomic(run.focus_file, focus_copy)
+        if Path(run.focus_file).resolve() != focus_copy.resolve():  # --track OUT.focus.json: already there
+            _copy_atomic(run.focus_file, focus_copy)
         run.outputs.append(focus_copy)
 
     stages.append(Stage("render", STAGE_COST["render"] * n * px, build_render, finish_render))

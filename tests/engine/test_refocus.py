@@ -185,3 +185,17 @@ def test_cuts_and_calm_reach_the_autofocus_in_frames_of_the_working_copy(clip, t
     assert doc["cuts"] == [3, 7] and doc["settings"]["cuts_source"] == "given"  # 40 is beyond the clip
     assert doc["settings"]["calm"]["calm"] == 0.2
     assert main(["refocus", str(clip), "-o", str(out), "--calm", "2", *FAST]) == 2
+
+
+def test_an_edited_focus_file_renders_again_without_autofocus(clip, reference, tmp_path, capsys):
+    doc = json.loads((reference / "r.focus.json").read_text())
+    doc["per_frame"]["focus"] = [5.0] * N  # the user's own decision
+    edited = tmp_path / "edited.focus.json"
+    edited.write_text(json.dumps(doc))
+    out = tmp_path / "e.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), "--track", str(edited), "--cache",
+                 str(next((reference / "rvr_cache").iterdir())), *FAST]) == 0
+    assert "no autofocus" in capsys.readouterr().out
+    assert json.loads((tmp_path / "e.focus.json").read_text())["per_frame"]["focus"] == [5.0] * N
+    assert not np.array_equal(frames_of(out), frames_of(reference / "r.mp4"))
+    assert main(["refocus", str(clip), "-o", str(out), "--track", str(tmp_path / "none.json"), *FAST]) == 2
