@@ -190,6 +190,8 @@ class RenderJob:
             raise InputError("no output given: pass -o OUT.mp4 and/or -o FRAMES_DIR")
         if s.aperture is not None and (not np.isfinite(s.aperture) or s.aperture < 0):
             raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
+        if s.focus is not None and not np.isfinite(s.focus):
+            raise InputError(f"--focus must be a finite disparity, got {s.focus}")
         if not (0 < s.scale <= 4):
             raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
         check_outputs("render", [("output", out) for out in s.outputs],

@@ -114,9 +114,22 @@ class LayerPlan:
         return int(self.indices.size)
 
 
+def max_blur_radius(height: int, width: int) -> float:
+    """The largest blur radius the renderers plan layers for: twice the frame diagonal (+16 px).
+    A larger disk covers the whole frame from every pixel; without a bound a huge disparity value
+    (1e30), focus or aperture (1e6) asked for billions of layers (a MemoryError, an OOM kill)."""
+    return 2.0 * math.hypot(height, width) + 16.0
+
+
 def signed_radius(disparity: Any, focus: float, aperture: float) -> Any:
-    """Signed blur radius in px: ``aperture * (disparity - focus)`` (numpy or torch)."""
-    return (disparity - focus) * aperture
+    """Signed blur radius in px: ``aperture * (disparity - focus)`` (numpy or torch); a numpy map is
+    clipped to +-:func:`max_blur_radius` of its frame (NaN stays NaN)."""
+    s = (disparity - focus) * aperture
+    if isinstance(s, np.ndarray) and s.ndim >= 2:
+        bound = np.float32(max_blur_radius(*s.shape[:2]))
+        with np.errstate(invalid="ignore"):
+            s = np.clip(s, -bound, bound, out=s if s is not disparity else None)
+    return s
 
 
 def hdr_radiance(linear_rgb: Any, hdr_exponent: Any | None) -> Any:

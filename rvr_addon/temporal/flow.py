@@ -67,7 +67,28 @@ class DISFlow:
         """Flow ``f_ab`` (h, w, 2) float32 px from gray uint8 frame a to frame b (same size)."""
         if a.shape != b.shape:
             raise ValueError(f"DISFlow: frames differ in size, {a.shape} vs {b.shape}")
-        return self._dis.calc(a, b, None)
+        return dis_calc(self._dis, a, b)
+
+
+def dis_calc(dis, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``dis.calc(a, b, None)`` of an OpenCV DIS object on frames of any size. OpenCV rejects frames
+    under 12 px and *crashes the process* (SIGSEGV) on thin ones (e.g. 24x160 with the fast
+    presets): those are padded with their edge pixels (:func:`dis_safe_size`), the flow cropped back."""
+    h, w = a.shape[:2]
+    ph, pw = dis_safe_size(h, w)
+    if (ph, pw) == (h, w):
+        return dis.calc(a, b, None)
+    pad = (0, ph - h, 0, pw - w, cv2.BORDER_REPLICATE)
+    flow = dis.calc(cv2.copyMakeBorder(a, *pad), cv2.copyMakeBorder(b, *pad), None)
+    return np.ascontiguousarray(flow[:h, :w])
+
+
+def dis_safe_size(h: int, w: int) -> tuple[int, int]:
+    """(h, w) padded so that OpenCV 4.11's DIS flow neither refuses nor crashes on it: each side at
+    least 32 px and at least a quarter of the longer side (found by running DIS on 1x1 .. 500x2000
+    frames of every preset in child processes)."""
+    side = max(32, (max(h, w) + 3) // 4)
+    return max(h, side), max(w, side)
 
 
 def pixel_grid(h: int, w: int) -> np.ndarray:

@@ -128,7 +128,9 @@ class ActionDetector(FocusDetector):
         """
         import cv2
 
-        flow = self._dis.calc(prev, cur, None)
+        from ...temporal.flow import dis_calc
+
+        flow = dis_calc(self._dis, prev, cur)  # padded: DIS crashes the process on thin frames
         h, w = prev.shape
         s = self.grid_step
         ys, xs = np.mgrid[s // 2:h:s, s // 2:w:s]
