@@ -103,9 +103,11 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray], half: bool = Fa
         with OpenEXR.File(header, prepared) as exr:
             exr.write(tmp_name)
         os.replace(tmp_name, path)
-    except Exception as ex:
+    except BaseException as ex:  # also Ctrl-C / SIGTERM (KeyboardInterrupt): no hidden temp file left
         try:
             os.unlink(tmp_name)
         except OSError:
             pass
+        if not isinstance(ex, Exception):
+            raise
         raise OutputError(f"Cannot write EXR '{path}': {ex}. Check free disk space and write permission.") from ex
