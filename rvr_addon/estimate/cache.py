@@ -128,6 +128,20 @@ def _read_meta(folder: Path) -> tuple[dict | None, str | None]:
     return None, None
 
 
+_TEMP_RE = re.compile(r"\.+(frame_\d{5,}\.exr|meta\.json)\.[0-9a-f]{8}\.")
+
+
+def _remove_stale_temps(folder: Path) -> None:
+    """Remove the hidden temp files (``.frame_00001.exr.1a2b3c4d.exr``, ``.meta.json.*.json``, ...)
+    a writer killed with SIGKILL (or a power cut) left in the cache folder; called while holding
+    the cache's writer lock, so none belongs to a live writer."""
+    if not folder.is_dir():
+        return
+    for p in folder.iterdir():
+        if _TEMP_RE.match(p.name) and p.is_file():
+            p.unlink(missing_ok=True)
+
+
 def _is_cache_entry(name: str) -> bool:
     return name == "meta.json" or name.startswith(".") or _FRAME_RE.match(name) is not None
 
@@ -291,6 +305,7 @@ class ClipCache:
     # -- opening --------------------------------------------------------------------------
     def _open(self, keep: tuple[str, ...], beside: bool) -> None:
         recover_swap(self.target)
+        _remove_stale_temps(self.target)  # under the writer's lock: no other writer owns them
         try:
             self.target.mkdir(parents=True, exist_ok=True)
         except OSError as ex:

@@ -189,3 +189,20 @@ def test_zz_report_faults():
     print(f"\npromises fault test: {COUNTS['faults']} faults injected ({COUNTS['killed_mid_run']} hit a running "
           f"command), files lost: {COUNTS['files_lost']}")
     assert COUNTS["files_lost"] == 0
+
+
+def test_a_writer_removes_the_temp_files_a_sigkilled_writer_left(world, tmp_path):
+    """SIGKILL cannot clean up: the next writer (it holds the cache's lock) removes the hidden temp
+    files of frames and meta.json; the frames and the lock file stay."""
+    from rvr_addon.estimate.cache import ClipCache
+
+    _, _, ref, _ = world
+    cache = tmp_path / "cache"
+    shutil.copytree(ref / "cache", cache)
+    stale = [cache / ".frame_00001.exr.2d1a2372.exr", cache / "..frame_00002.exr.2d1a2372.exr.258ea074.tmp.exr",
+             cache / ".meta.json.0a1b2c3d.json"]
+    for p in stale:
+        p.write_bytes(b"half a file")
+    ClipCache.open_existing(cache).close()
+    assert not any(p.exists() for p in stale) and (cache / "frame_00001.exr").is_file()
+    assert _channels(cache).keys() == _channels(ref / "cache").keys()
