@@ -96,7 +96,6 @@ def add_parser(sub) -> None:
 def settings_from_args(args: argparse.Namespace):
     """The :class:`~rvr_addon.refocus.job.RefocusSettings` of the command line."""
     from ..io.video import probe_clip
-    from ..laaf.combine import DEFAULT_PRESET
     from ..render.aperture import ApertureSpec
     from .demo import DEMO_OUT_DIR, demo_clip
     from .job import RefocusSettings, derived_path
@@ -130,7 +129,7 @@ def settings_from_args(args: argparse.Namespace):
         stop = args.start + max(1, int(round(args.duration * fps)))
     side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, "_side_by_side.mp4"))
     sheet = None if args.preview is None else Path(args.preview or derived_path(output, "_sheet.png"))
-    preset = args.preset if args.preset is not None else (None if args.focus_on is not None else DEFAULT_PRESET)
+    preset = args.preset  # None: the default preset, unless a subject is pinned (refocus_job decides)
     if not 0.0 <= args.calm <= 1.0:
         raise RvrError(f"--calm {args.calm}: give a value from 0 (responsive) to 1 (calm)")
     cut_list = None
