@@ -11,7 +11,7 @@ from ..errors import RvrError
 
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add the ``batch`` sub-command to the ``rvr`` sub-parsers."""
-    from ..laaf.commands import _afnet_args, _pull_args
+    from ..laaf.commands import add_afnet_args, add_pull_args
     from ..laaf.presets import DEFAULT_PRESET, PRESETS
     from ..temporal.settings import TemporalSettings
     from . import FORMATS
@@ -49,10 +49,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     g.add_argument("--preset", choices=tuple(PRESETS), default=DEFAULT_PRESET,
                    help="LAAF AI-assist preset (default %(default)s: reads the clip and picks; conversation without "
                         "audio falls back to faces), or learned (AF-Net)")
-    _afnet_args(g)
+    add_afnet_args(g)
     g.add_argument("--look-ahead", type=float, default=2.0, metavar="S", help="look-ahead window in seconds (default 2)")
     g.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do)")
-    _pull_args(g)
+    add_pull_args(g)
     g.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the focus track (default 1)")
     from ..laaf.presets import DEFAULT_CALM
 
@@ -83,20 +83,20 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def cmd_batch(args: argparse.Namespace) -> int:
     """Run ``rvr batch``; prints the summary table; exit status 1 if any clip failed."""
-    from ..laaf.commands import _check_afnet, _pull
+    from ..laaf.commands import check_afnet_args, pull_settings
     from ..temporal.filter import TemporalSettings
     from .graph import ClusterSettings, run_batch
     from .inputs import collect_clips
     from .settings import BatchSettings
 
-    _check_afnet(args)
+    check_afnet_args(args)
     if not 0.0 <= args.calm <= 1.0:
         raise RvrError(f"--calm {args.calm}: give a value from 0 (responsive) to 1 (calm)")
     settings = BatchSettings(
         output=args.output, cache_root=args.cache_root, weights=args.weights, depth_root=args.depth_root,
         depth_scale=args.depth_scale, depth_offset=args.depth_offset, depth_is_distance=args.depth_is_distance,
         no_hdr=args.no_hdr, temporal=TemporalSettings(window=args.temporal_window, m=args.m), preset=args.preset,
-        window_s=args.look_ahead, causal=args.causal, pull=_pull(args), aperture=args.aperture, scale=args.scale,
+        window_s=args.look_ahead, causal=args.causal, pull=pull_settings(args), aperture=args.aperture, scale=args.scale,
         format=args.format, chunk_frames=args.chunk_frames, fps=args.fps, force=args.force, retries=args.retries,
         keep_cache=not args.drop_cache, afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold,
         afnet_speaker=args.afnet_region == "speaker", depth_method=args.depth_method, hfov_deg=args.hfov,

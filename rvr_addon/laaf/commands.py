@@ -8,7 +8,8 @@ from ..cli import on_interrupt
 from ..errors import RvrError
 
 
-def _pull_args(p: argparse.ArgumentParser) -> None:
+def add_pull_args(p: argparse.ArgumentParser) -> None:
+    """``--pull-frames --lead-frames --profile --hold-frames`` (rvr autofocus, eval-focus, batch)."""
     from .presets import PROFILES
 
     p.add_argument("--pull-frames", type=int, default=10, help="length of a focus pull in frames (default 10)")
@@ -19,7 +20,8 @@ def _pull_args(p: argparse.ArgumentParser) -> None:
                    help="after a subject is lost, hold its focus this long before releasing (default 12)")
 
 
-def _afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
+def add_afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
+    """``--afnet-weights --afnet-threshold`` (and ``--afnet-region`` when ``region``) of preset learned."""
     p.add_argument("--afnet-weights", type=Path, metavar="PATH",
                    help="AF-Net weights for --preset learned (rvr train-afnet's RUN/afnet.pt; default "
                         "rvr_addon/afnet/weights/afnet.pt)")
@@ -33,12 +35,14 @@ def _afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
                         "detector localises; elsewhere AF-Net's map) or map (always AF-Net's map, the paper's)")
 
 
-def _check_afnet(args: argparse.Namespace) -> None:
+def check_afnet_args(args: argparse.Namespace) -> None:
+    """RvrError naming ``--afnet-threshold`` when it is outside (0, 1)."""
     if args.afnet_threshold is not None and not 0.0 < args.afnet_threshold < 1.0:
         raise RvrError(f"--afnet-threshold must be between 0 and 1, got {args.afnet_threshold}")
 
 
-def _pull(args: argparse.Namespace):
+def pull_settings(args: argparse.Namespace):
+    """The :class:`~rvr_addon.laaf.puller.PullSettings` of the pull options (RvrError naming a bad one)."""
     from .puller import PullSettings
 
     s = PullSettings(pull_frames=args.pull_frames, lead_frames=args.lead_frames, profile=args.profile,
@@ -69,11 +73,11 @@ def add_autofocus_parser(sub) -> None:
                         "clip (speech? faces? motion?) and picks one of action={action,saliency}, "
                         "conversation={speech,face}, faces, salient; or learned: AF-Net predicts the NFTs of any "
                         "video (needs trained weights, --afnet-weights)")
-    _afnet_args(p)
+    add_afnet_args(p)
     p.add_argument("--targets", type=Path, help="manual NFTs (JSON: [{t, x, y, box, source}], 0-based frames)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
     p.add_argument("--causal", action="store_true", help="no look-ahead (window 0): what a camera could do")
-    _pull_args(p)
+    add_pull_args(p)
     p.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the track (default 1.0)")
     from .presets import DEFAULT_CALM
 
@@ -117,7 +121,7 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
     for maps in (args.cache, args.depth):  # a cache (also given as --depth) of another clip is refused
         if maps is not None:
             check_cache_source(maps, args.input, command="autofocus")
-    _check_afnet(args)
+    check_afnet_args(args)
     cut_list = None
     if args.cuts is not None:
         from ..temporal.cuts import parse_cuts
@@ -132,7 +136,7 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
     settings = AutofocusSettings(
         input=args.input, cache=args.cache, depth=args.depth, depth_scale=args.depth_scale,
         depth_offset=args.depth_offset, preset=preset, targets=args.targets, window_s=args.window,
-        causal=args.causal, pull=_pull(args), aperture=args.aperture, analysis_width=args.analysis_width,
+        causal=args.causal, pull=pull_settings(args), aperture=args.aperture, analysis_width=args.analysis_width,
         min_step=args.min_step, start=args.start, stop=args.stop, fps=args.fps, afnet_weights=args.afnet_weights,
         afnet_threshold=args.afnet_threshold, afnet_speaker=args.afnet_region == "speaker", cuts=cut_list,
         detect_cuts=not args.no_cuts, calm=args.calm)
@@ -200,9 +204,9 @@ def add_eval_focus_parser(sub) -> None:
     p.add_argument("--presets", nargs="+", choices=EVAL_PRESETS, default=["action", "conversation"],
                    help="presets to evaluate on the same clips (default action conversation; add learned for AF-Net, "
                         "learned-map for AF-Net with every region from its own map)")
-    _afnet_args(p, region=False)
+    add_afnet_args(p, region=False)
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
-    _pull_args(p)
+    add_pull_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_eval_focus)
 
@@ -210,8 +214,8 @@ def add_eval_focus_parser(sub) -> None:
 def cmd_eval_focus(args: argparse.Namespace) -> int:
     from .evaluate import evaluate
 
-    _check_afnet(args)
-    summary = evaluate(args.dataset, args.output, args.presets, _pull(args), args.window, progress=not args.quiet,
+    check_afnet_args(args)
+    summary = evaluate(args.dataset, args.output, args.presets, pull_settings(args), args.window, progress=not args.quiet,
                        afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold)
     for p in args.presets:
         g = summary.get
