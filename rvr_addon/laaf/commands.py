@@ -35,6 +35,34 @@ def add_afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
                         "detector localises; elsewhere AF-Net's map) or map (always AF-Net's map, the paper's)")
 
 
+def add_calm_cuts_args(p: argparse.ArgumentParser) -> None:
+    """``--calm 0..1`` and ``--cuts FILE|FRAMES`` / ``--no-cuts`` (rvr autofocus, rvr refocus)."""
+    from .presets import DEFAULT_CALM
+
+    p.add_argument("--calm", type=float, default=DEFAULT_CALM, metavar="0..1",
+                   help=f"calm <-> responsive (default {DEFAULT_CALM}): 1 holds focus (minimum hold, hysteresis, "
+                        "a cost for each change, a follow deadband), 0 pulls on every detected change (the paper)")
+    cuts = p.add_mutually_exclusive_group()
+    cuts.add_argument("--cuts", metavar="FILE|FRAMES",
+                      help='the shot cuts, instead of detecting them: frames ("12,80": 0-based first frame of each '
+                           "new shot) or a file (JSON list, {\"cuts\": [...]} e.g. a focus file, or text)")
+    cuts.add_argument("--no-cuts", action="store_true", help="no shot cuts: do not detect any")
+
+
+def calm_cuts_from_args(args: argparse.Namespace) -> list[int] | None:
+    """Check ``--calm`` (RvrError outside 0..1) and return the ``--cuts`` list (None: detect them)."""
+    if not 0.0 <= args.calm <= 1.0:
+        raise RvrError(f"--calm {args.calm}: give a value from 0 (responsive) to 1 (calm)")
+    if args.cuts is None:
+        return None
+    from ..temporal.cuts import parse_cuts
+
+    try:
+        return parse_cuts(args.cuts)
+    except (ValueError, OSError) as ex:
+        raise RvrError(f"--cuts: {ex}") from None
+
+
 def check_afnet_args(args: argparse.Namespace) -> None:
     """RvrError naming ``--afnet-threshold`` when it is outside (0, 1)."""
     if args.afnet_threshold is not None and not 0.0 < args.afnet_threshold < 1.0:
@@ -79,16 +107,7 @@ def add_autofocus_parser(sub) -> None:
     p.add_argument("--causal", action="store_true", help="no look-ahead (window 0): what a camera could do")
     add_pull_args(p)
     p.add_argument("--aperture", type=float, default=1.0, help="aperture scale of the track (default 1.0)")
-    from .presets import DEFAULT_CALM
-
-    p.add_argument("--calm", type=float, default=DEFAULT_CALM, metavar="0..1",
-                   help=f"calm <-> responsive (default {DEFAULT_CALM}): 1 holds focus (minimum hold, hysteresis, "
-                        "a cost for each change, a follow deadband), 0 pulls on every detected change (the paper)")
-    cuts = p.add_mutually_exclusive_group()
-    cuts.add_argument("--cuts", metavar="FILE|FRAMES",
-                      help='the shot cuts, instead of detecting them: frames ("12,80": 0-based first frame of each '
-                           "new shot) or a file (JSON list, {\"cuts\": [...]} e.g. a focus file, or text)")
-    cuts.add_argument("--no-cuts", action="store_true", help="no shot cuts: do not detect any")
+    add_calm_cuts_args(p)
     p.add_argument("--min-step", type=float, default=0.5,
                    help="smallest focus change (disparity units) that makes an NFT (default 0.5)")
     p.add_argument("--analysis-width", type=int, default=320, help="detector/tracker width in px (default 320)")
@@ -122,14 +141,7 @@ def cmd_autofocus(args: argparse.Namespace) -> int:
         if maps is not None:
             check_cache_source(maps, args.input, command="autofocus")
     check_afnet_args(args)
-    cut_list = None
-    if args.cuts is not None:
-        from ..temporal.cuts import parse_cuts
-
-        try:
-            cut_list = parse_cuts(args.cuts)
-        except (ValueError, OSError) as ex:
-            raise RvrError(f"--cuts: {ex}") from None
+    cut_list = calm_cuts_from_args(args)
     from .presets import DEFAULT_PRESET
 
     preset = args.preset if args.preset is not None or args.targets is not None else DEFAULT_PRESET

@@ -76,16 +76,9 @@ def add_parser(sub) -> None:
     p.add_argument("--hfov", type=float, metavar="DEG", help="the camera's horizontal field of view (default 66)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window of the autofocus in s (default 2)")
     p.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do live)")
-    from ..laaf.presets import DEFAULT_CALM
+    from ..laaf.commands import add_calm_cuts_args
 
-    p.add_argument("--calm", type=float, default=DEFAULT_CALM, metavar="0..1",
-                   help=f"calm <-> responsive focus (default {DEFAULT_CALM}): 1 holds a subject and pulls only for a "
-                        "clear change, 0 follows every detected change")
-    cuts = p.add_mutually_exclusive_group()
-    cuts.add_argument("--cuts", metavar="FILE|FRAMES",
-                      help='the shot cuts instead of detecting them: frames of the clip ("12,80", the first frame '
-                           "of each new shot) or a file (JSON list, a focus file, or text)")
-    cuts.add_argument("--no-cuts", action="store_true", help="the clip is one shot: detect no cuts")
+    add_calm_cuts_args(p)  # frames of --cuts are frames of the clip, whatever --start says
     p.add_argument("--no-stabilize", action="store_true", help="skip the temporal filter of the depth")
     p.add_argument("--weights", type=Path, help="estimator weights (default: the shipped ones)")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
@@ -130,16 +123,9 @@ def settings_from_args(args: argparse.Namespace):
     side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, "_side_by_side.mp4"))
     sheet = None if args.preview is None else Path(args.preview or derived_path(output, "_sheet.png"))
     preset = args.preset  # None: the default preset, unless a subject is pinned (refocus_job decides)
-    if not 0.0 <= args.calm <= 1.0:
-        raise RvrError(f"--calm {args.calm}: give a value from 0 (responsive) to 1 (calm)")
-    cut_list = None
-    if args.cuts is not None:
-        from ..temporal.cuts import parse_cuts
+    from ..laaf.commands import calm_cuts_from_args
 
-        try:
-            cut_list = parse_cuts(args.cuts)
-        except ValueError as ex:
-            raise RvrError(f"--cuts: {ex}") from None
+    cut_list = calm_cuts_from_args(args)
     return RefocusSettings(
         input=args.input, output=output, cache=args.cache, preset=preset, focus_on=args.focus_on, aperture=aperture,
         spec=ApertureSpec(shape=args.shape, blades=args.blades), start=args.start, stop=stop,

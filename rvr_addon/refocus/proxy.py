@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.video import ClipInfo, iter_frames, probe_clip
 from ..io.writer import VideoWriter
+from .videojob import VideoWriteJob
 
 PROXY_CRF = 12
 """x264 quality of the working copy (18 is visually lossless; 12 leaves no visible loss for the
@@ -31,8 +32,10 @@ def needs_proxy(clip: ClipInfo, max_size: int | None, start: int, stop: int | No
     return proxy_size(clip.width, clip.height, max_size) != (clip.width, clip.height) or not whole
 
 
-class ProxyJob:
+class ProxyJob(VideoWriteJob):
     """Write the working copy frame by frame (``step``); the file appears only when complete."""
+
+    what = "copy"
 
     def __init__(self, source: Path, output: Path, max_size: int | None, start: int = 0, stop: int | None = None,
                  fps: float | None = None) -> None:
@@ -43,55 +46,24 @@ class ProxyJob:
             raise InputError(f"--start {start} / --stop {stop}: the range is empty for '{self.source}' "
                              f"({self.clip.frame_count} frames)")
         self.start = start
-        self.total = self.stop - start
         self.size = proxy_size(self.clip.width, self.clip.height, max_size)
-        self.done = 0
-        self._frames = None
-        self._writer: VideoWriter | None = None
-        self._finished = False
-        self.text = f"working copy of {self.source.name} at {self.size[0]}x{self.size[1]}"
+        super().__init__(self.stop - start, f"working copy of {self.source.name} at {self.size[0]}x{self.size[1]}")
 
-    @property
-    def progress(self) -> float:
-        """Fraction of frames written, 0..1."""
-        return self.done / self.total if self.total else 1.0
+    def open(self):
+        """The source's frames of the range and the writer of the copy (the audio from the range's start)."""
+        audio = self.source if self.clip.has_audio else None
+        writer = VideoWriter(self.output, fps=self.clip.fps, size=self.size, audio_from=audio, crf=PROXY_CRF,
+                             audio_start=self.start / self.clip.fps)
+        return iter_frames(self.source, start=self.start, stop=self.stop), writer
 
-    def step(self) -> bool:
-        """Resize and write the next frame; False once the copy is complete."""
+    def frame(self, item: np.ndarray) -> np.ndarray:
+        """The frame resized (area filter) to the copy's size."""
         import cv2
 
-        if self._finished:
-            return False
-        try:
-            if self._frames is None:
-                self._frames = iter_frames(self.source, start=self.start, stop=self.stop)
-                audio = self.source if self.clip.has_audio else None
-                self._writer = VideoWriter(self.output, fps=self.clip.fps, size=self.size, audio_from=audio,
-                                           crf=PROXY_CRF, audio_start=self.start / self.clip.fps)
-            frame = next(self._frames, None)
-            if frame is None:
-                raise InputError(f"'{self.source}' ended after {self.done} of {self.total} frames")
-            if (frame.shape[1], frame.shape[0]) != self.size:
-                frame = cv2.resize(frame, self.size, interpolation=cv2.INTER_AREA)
-            self._writer.write(np.ascontiguousarray(frame))
-            self.done += 1
-            if self.done == self.total:
-                self._writer.close()
-                self._writer = None
-                self._finished = True
-                return False
-            return True
-        except BaseException:
-            self.cancel()
-            raise
+        if (item.shape[1], item.shape[0]) != self.size:
+            item = cv2.resize(item, self.size, interpolation=cv2.INTER_AREA)
+        return item
 
-    def cancel(self) -> None:
-        """Stop; no partial file is left at the output path. Idempotent; after the end it changes
-        nothing."""
-        if self._finished:
-            return
-        if self._writer is not None:
-            self._writer.abort()
-            self._writer = None
-        self._finished = True
-        self.text = f"cancelled after {self.done} of {self.total} frames; no copy written"
+    def ended_early(self) -> None:
+        """A copy shorter than the range is refused."""
+        raise InputError(f"'{self.source}' ended after {self.done} of {self.total} frames")

@@ -9,6 +9,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.video import iter_frames, probe_clip
 from ..io.writer import VideoWriter
+from .videojob import VideoWriteJob
 
 GAP_PX = 4
 """Width of the dark line between the two halves (px)."""
@@ -39,58 +40,25 @@ def side_by_side(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     return np.concatenate([label(before, "before"), gap, label(after, "after (refocused)")], axis=1)
 
 
-class SideBySideJob:
+class SideBySideJob(VideoWriteJob):
     """Write ``output`` from ``before`` (the clip) and ``after`` (its render), frame by frame."""
 
     def __init__(self, before: Path, after: Path, output: Path) -> None:
         self.before, self.after, self.output = Path(before), Path(after), Path(output)
         self.clip = probe_clip(self.before)
         rendered = probe_clip(self.after)
-        self.total = min(self.clip.frame_count, rendered.frame_count)
-        if self.total <= 0:
+        total = min(self.clip.frame_count, rendered.frame_count)
+        if total <= 0:
             raise InputError(f"'{self.after}' holds no frame to put beside '{self.before}'")
-        self.done = 0
-        self._pairs = None
-        self._writer: VideoWriter | None = None
-        self._finished = False
-        self.text = f"before | after video {self.output.name}"
+        super().__init__(total, f"before | after video {self.output.name}")
 
-    @property
-    def progress(self) -> float:
-        """Fraction of frames written, 0..1."""
-        return self.done / self.total if self.total else 1.0
+    def open(self):
+        """Pairs of (clip frame, rendered frame) and the writer (the clip's audio)."""
+        size = (2 * self.clip.width + GAP_PX, self.clip.height)
+        writer = VideoWriter(self.output, fps=self.clip.fps, size=size,
+                             audio_from=self.before if self.clip.has_audio else None)
+        return zip(iter_frames(self.before, stop=self.total), iter_frames(self.after, stop=self.total)), writer
 
-    def step(self) -> bool:
-        """Write the next pair; False once complete."""
-        if self._finished:
-            return False
-        try:
-            if self._pairs is None:
-                self._pairs = zip(iter_frames(self.before, stop=self.total), iter_frames(self.after, stop=self.total))
-                size = (2 * self.clip.width + GAP_PX, self.clip.height)
-                self._writer = VideoWriter(self.output, fps=self.clip.fps, size=size,
-                                           audio_from=self.before if self.clip.has_audio else None)
-            pair = next(self._pairs, None)
-            if pair is not None:
-                self._writer.write(side_by_side(*pair))
-                self.done += 1
-            if pair is None or self.done == self.total:
-                self._writer.close()
-                self._writer = None
-                self._finished = True
-                return False
-            return True
-        except BaseException:
-            self.cancel()
-            raise
-
-    def cancel(self) -> None:
-        """Stop; no partial file is left at the output path. Idempotent; after the end it changes
-        nothing."""
-        if self._finished:
-            return
-        if self._writer is not None:
-            self._writer.abort()
-            self._writer = None
-        self._finished = True
-        self.text = f"cancelled after {self.done} of {self.total} frames; no video written"
+    def frame(self, item: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """The pair side by side, labelled."""
+        return side_by_side(*item)
