@@ -523,6 +523,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = RvrArgumentParser(prog="rvr", description="RVR-LAAF: refocusable video rendering.")
     parser.add_argument("--version", action="version", version=f"rvr {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    from .refocus.commands import add_parser as add_refocus_parser
+
+    add_refocus_parser(sub)  # rvr refocus: the whole pipeline, listed first
     add_render_parser(sub)
     add_train_parser(sub)
     add_procedural_parser(sub)
@@ -540,9 +543,6 @@ def build_parser() -> argparse.ArgumentParser:
     from .batch.commands import add_parser as add_batch_parser
 
     add_batch_parser(sub)  # rvr batch
-    from .refocus.commands import add_parser as add_refocus_parser
-
-    add_refocus_parser(sub)  # rvr refocus
     return parser
 
 
