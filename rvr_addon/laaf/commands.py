@@ -211,7 +211,7 @@ def add_eval_focus_parser(sub) -> None:
                        description="Run look-ahead and causal LAAF per preset on each harness clip (ground-truth "
                                    "disparity) and compare with the ground-truth NFTs (paper section 6.2): "
                                    "summary.json, report.md and focus plots in REPORT.")
-    p.add_argument("dataset", type=Path, help="folder of harness clips (or one clip)")
+    p.add_argument("dataset", type=Path, nargs="?", help="folder of harness clips (or one clip); not with --real")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="REPORT", help="report folder")
     p.add_argument("--presets", nargs="+", choices=EVAL_PRESETS, default=["action", "conversation"],
                    help="presets to evaluate on the same clips (default action conversation; add learned for AF-Net, "
@@ -220,13 +220,38 @@ def add_eval_focus_parser(sub) -> None:
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window in seconds (default 2.0)")
     add_pull_args(p)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    add_eval_real_args(p)
     p.set_defaults(func=cmd_eval_focus)
+
+
+def add_eval_real_args(p: argparse.ArgumentParser) -> None:
+    """``--real CLIP --annotations ANN.json (--cache C | --depth D) [--preset P ...] [--causal-too]``."""
+    from .presets import DEFAULT_PRESET, PRESETS
+
+    g = p.add_argument_group("real clips", "score `rvr autofocus` on a real clip against a hand annotation "
+                             "(rvr_addon/laaf/score_real.py): lead/lag per speaker turn, share of speaking time "
+                             "on the speaker, spurious focus changes per minute, pulls across cuts")
+    g.add_argument("--real", type=Path, metavar="CLIP", help="a real clip to score (instead of DATASET)")
+    g.add_argument("--annotations", type=Path, metavar="ANN.json",
+                   help='with --real: {"fps", "turns": [{start_s, end_s, box}], "cuts"} (or stretches + sides)')
+    g.add_argument("--preset", nargs="+", choices=tuple(PRESETS), default=None, metavar="P",
+                   help=f"with --real: presets to run (default {DEFAULT_PRESET})")
+    g.add_argument("--cache", type=Path, help="with --real: the clip's `rvr estimate` cache (its depth)")
+    g.add_argument("--depth", type=Path, help="with --real: disparity maps of the clip")
+    g.add_argument("--causal-too", action="store_true", help="with --real: also run causal (no look-ahead)")
 
 
 def cmd_eval_focus(args: argparse.Namespace) -> int:
     from .evaluate import evaluate
 
     check_afnet_args(args)
+    if args.real is not None:
+        return cmd_eval_focus_real(args)
+    for opt in ("annotations", "preset", "cache", "depth"):
+        if getattr(args, opt) is not None:
+            raise RvrError(f"--{opt} belongs to --real CLIP; give --real or leave it out")
+    if args.dataset is None:
+        raise RvrError("eval-focus: give a DATASET of harness clips, or --real CLIP --annotations ANN.json")
     summary = evaluate(args.dataset, args.output, args.presets, pull_settings(args), args.window, progress=not args.quiet,
                        afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold)
     for p in args.presets:
@@ -234,6 +259,48 @@ def cmd_eval_focus(args: argparse.Namespace) -> int:
         print(f"{p}: look-ahead mean|dt| {g(f'focus.{p}.mean_dt_frames')} frames, mean|dd| {g(f'focus.{p}.mean_dd')}; "
               f"causal mean|dt| {g(f'focus.{p}.causal.mean_dt_frames')}, mean|dd| {g(f'focus.{p}.causal.mean_dd')}")
     print(f"wrote {args.output / 'summary.json'}, {args.output / 'report.md'}")
+    return 0
+
+
+def cmd_eval_focus_real(args: argparse.Namespace) -> int:
+    """``rvr eval-focus --real CLIP --annotations ANN.json (--cache | --depth) ...``."""
+    from .presets import DEFAULT_PRESET
+    from .score_real import evaluate_real, load_annotation
+
+    if args.dataset is not None:
+        raise RvrError(f"eval-focus: give either DATASET ({args.dataset}) or --real {args.real}, not both")
+    if args.annotations is None:
+        raise RvrError("eval-focus --real: give --annotations ANN.json (the speaker turns of the clip)")
+    if (args.cache is None) == (args.depth is None):
+        raise RvrError("eval-focus --real: give the clip's depth, either --cache CACHE (of `rvr estimate`) or "
+                       "--depth MAPS (one of them); a flat depth map would make every focus pull a no-op")
+    try:
+        load_annotation(args.annotations)
+    except (OSError, ValueError, KeyError, TypeError) as ex:
+        raise RvrError(f"--annotations {args.annotations}: {ex}") from None
+    from ..estimate.cache import check_cache_source
+
+    for maps in (args.cache, args.depth):
+        if maps is not None:
+            check_cache_source(maps, args.real, command="eval-focus")
+    presets = args.preset or [DEFAULT_PRESET]
+    with on_interrupt("eval-focus", lambda: "cancelled"):
+        summary = evaluate_real(args.real, args.annotations, args.output, presets, cache=args.cache,
+                                depth=args.depth, causal_too=args.causal_too, window_s=args.window,
+                                pull=pull_settings(args), progress=not args.quiet,
+                                afnet_weights=args.afnet_weights, afnet_threshold=args.afnet_threshold)
+    name = args.real.stem
+    for p in presets:
+        for suffix, label in (("", "look-ahead"), (".causal", "causal")):
+            k = f"focus.real.{name}.{p}{suffix}"
+            if f"{k}.speaking_share" not in summary:
+                continue
+            g = summary.get
+            chose = f" (auto chose {g(k + '.auto_chose')})" if g(k + ".auto_chose") else ""
+            print(f"{p} {label}{chose}: speaking share {g(k + '.speaking_share')}, turns led "
+                  f"{g(k + '.turns_led')}/{g(k + '.turns_changed')}, lead mean {g(k + '.lead_frames_mean')} frames, "
+                  f"spurious {g(k + '.spurious_per_min')}/min, pulls across cuts {g(k + '.pulls_across_cuts')}")
+    print(f"wrote {args.output / 'summary.json'}, {args.output / 'details.json'}")
     return 0
 
 
