@@ -12,6 +12,8 @@ with the presets.
 """
 from __future__ import annotations
 
+from ..lazy_exports import lazy_getattr
+
 from .config import AFNetConfig
 
 __all__ = ["AFNet", "AFNetConfig", "ANNOTATION_FORMAT", "AnnotatedClip", "Annotation", "read_annotations",
@@ -22,12 +24,4 @@ _LAZY = {"ANNOTATION_FORMAT": ".annotations", "AnnotatedClip": ".annotations", "
          "load_afnet": ".infer", "predict_clip": ".infer", "AFNet": ".model"}
 """Exports imported on first use (:mod:`.model` and :mod:`.infer` load torch; ``rvr --help`` must not)."""
 
-
-def __getattr__(name: str):
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())

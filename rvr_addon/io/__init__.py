@@ -1,6 +1,8 @@
 """Input/output: clips (video or image sequence), EXR, per-frame maps, focus tracks, atomic writers."""
 from __future__ import annotations
 
+from ..lazy_exports import lazy_getattr
+
 __all__ = [
     "ClipInfo", "FocusTrack", "ImageSequenceWriter", "MapSequence", "VideoWriter", "constant_track",
     "iter_frames", "load_track", "open_map_sequence", "probe_clip", "read_exr", "resolve_track", "write_exr",
@@ -13,12 +15,4 @@ _LAZY = {"read_exr": ".exr", "write_exr": ".exr", "MapSequence": ".maps", "open_
 """Exports imported on first use: importing a light submodule (``io.paths``, ``io.lock``) loads no NumPy or
 OpenEXR, so ``rvr --help`` stays fast."""
 
-
-def __getattr__(name: str):
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())

@@ -11,6 +11,8 @@ chunks by ``rvr batch``), ``focusfile`` (the JSON ``rvr render`` reads),
 """
 from __future__ import annotations
 
+from ..lazy_exports import lazy_getattr
+
 from .presets import PROFILES
 
 __all__ = ["NFT", "load_nfts", "save_nfts", "validate_nfts", "Key", "keyframes", "evaluate_keys", "PROFILES",
@@ -21,12 +23,4 @@ _LAZY = {"Key": ".keyframes", "evaluate_keys": ".keyframes", "keyframes": ".keyf
          "PullTarget": ".puller", "compose_track": ".puller", "pull_weight": ".puller"}
 """Exports imported on first use (NumPy and the engine load then; ``rvr --help`` needs none of them)."""
 
-
-def __getattr__(name: str):
-    if name not in _LAZY:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-
-    value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_getattr(__name__, _LAZY, globals())
