@@ -88,7 +88,6 @@ def add_parser(sub) -> None:
 
 def settings_from_args(args: argparse.Namespace):
     """The :class:`~rvr_addon.refocus.job.RefocusSettings` of the command line."""
-    from ..io.video import probe_clip
     from ..render.aperture import ApertureSpec
     from .demo import DEMO_OUT_DIR, demo_clip
     from .job import RefocusSettings, derived_path
@@ -114,12 +113,8 @@ def settings_from_args(args: argparse.Namespace):
         aperture = 1.0 if args.aperture is None else args.aperture
     if aperture < 0:
         raise RvrError(f"--aperture {aperture}: give a blur strength >= 0 (0 = none)")
-    stop = args.stop
-    if args.duration is not None:
-        if not args.duration > 0:
-            raise RvrError(f"--duration {args.duration}: give a positive number of seconds")
-        fps = probe_clip(args.input, fps=args.fps).fps
-        stop = args.start + max(1, int(round(args.duration * fps)))
+    if args.duration is not None and not args.duration > 0:
+        raise RvrError(f"--duration {args.duration}: give a positive number of seconds")
     side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, "_side_by_side.mp4"))
     sheet = None if args.preview is None else Path(args.preview or derived_path(output, "_sheet.png"))
     preset = args.preset  # None: the default preset, unless a subject is pinned (refocus_job decides)
@@ -128,9 +123,9 @@ def settings_from_args(args: argparse.Namespace):
     cut_list = calm_cuts_from_args(args)
     return RefocusSettings(
         input=args.input, output=output, cache=args.cache, preset=preset, focus_on=args.focus_on, aperture=aperture,
-        spec=ApertureSpec(shape=args.shape, blades=args.blades), start=args.start, stop=stop,
-        max_size=args.max_size or None, side_by_side=side, preview=sheet, depth_method=args.depth_method,
-        hfov_deg=args.hfov, window_s=args.window, causal=args.causal, weights=args.weights, fps=args.fps,
+        spec=ApertureSpec(shape=args.shape, blades=args.blades), start=args.start, stop=args.stop,
+        duration_s=args.duration, max_size=args.max_size or None, side_by_side=side, preview=sheet,
+        depth_method=args.depth_method, hfov_deg=args.hfov, window_s=args.window, causal=args.causal, weights=args.weights, fps=args.fps,
         stabilize=not args.no_stabilize, calm=args.calm, cuts=cut_list, detect_cuts=not args.no_cuts,
         track=args.track)
 

@@ -14,7 +14,7 @@ import json
 import logging
 import os
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .. import __version__
@@ -54,6 +54,8 @@ class RefocusSettings:
     spec: ApertureSpec = field(default_factory=ApertureSpec)
     start: int = 0
     stop: int | None = None
+    duration_s: float | None = None
+    """Instead of ``stop``: this many seconds from ``start`` (at the clip's frame rate)."""
     max_size: int | None = DEFAULT_MAX_SIZE
     side_by_side: Path | None = None
     preview: Path | None = None
@@ -154,7 +156,7 @@ def check_outputs(s: RefocusSettings) -> None:
 def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     """The chain of stages of one ``rvr refocus`` run and the record it fills in."""
     from ..io.video import probe_clip
-    from .proxy import ProxyJob, needs_proxy
+    from .proxy import ProxyJob, needs_proxy, proxy_size
 
     check_outputs(s)
     if s.track is not None and not Path(s.track).is_file():
@@ -166,18 +168,22 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     if s.max_size is not None and s.max_size < 0:
         raise InputError(f"--max-size {s.max_size}: give a long side in px (e.g. 1280), or 0 for the clip's size")
     source = probe_clip(s.input, fps=s.fps)
+    if s.duration_s is not None:  # --duration: frames from --start at the clip's rate
+        s = replace(s, stop=s.start + max(1, int(round(s.duration_s * source.fps))), duration_s=None)
     work = Path(s.cache) if s.cache is not None else default_work_folder(Path(s.input), Path(s.output))
     proxy = needs_proxy(source, s.max_size, s.start, s.stop)
     run = RefocusRun(settings=s, work=work, clip=Path(s.input), cache=work / "cache")
     stages: list[Stage] = []
     factor = 1.0
     if proxy:
-        probe = ProxyJob(Path(s.input), work / "x.mp4", s.max_size, s.start, s.stop, fps=s.fps)
-        w, h = probe.size
-        name = f"clip_{w}x{h}_{probe.start}_{probe.stop}.mp4"
-        run.clip = work / name
+        stop = source.frame_count if s.stop is None else min(s.stop, source.frame_count)
+        if s.start < 0 or s.start >= stop:
+            raise InputError(f"--start {s.start} / --stop {s.stop}: the range is empty for '{s.input}' "
+                             f"({source.frame_count} frames)")
+        w, h = proxy_size(source.width, source.height, s.max_size)
+        run.clip = work / f"clip_{w}x{h}_{s.start}_{stop}.mp4"
         factor = w / source.width
-        run.frames, run.size = probe.total, (w, h)
+        run.frames, run.size = stop - s.start, (w, h)
         if (w, h) != (source.width, source.height):
             run.notes.append(f"working at {w}x{h} (the clip is {source.width}x{source.height}; --max-size 0 keeps "
                              f"its size)")
@@ -185,9 +191,9 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         def build_proxy():
             if run.clip.is_file():
                 return None  # made by an earlier run (written atomically: complete)
-            return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, s.stop, fps=s.fps)
+            return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, stop, fps=s.fps, clip=source)
 
-        stages.append(Stage("working copy", STAGE_COST["working copy"] * probe.total, build_proxy))
+        stages.append(Stage("working copy", STAGE_COST["working copy"] * run.frames, build_proxy))
     else:
         run.frames, run.size = source.frame_count, (source.width, source.height)
     n = run.frames

@@ -38,9 +38,10 @@ class ProxyJob(VideoWriteJob):
     what = "copy"
 
     def __init__(self, source: Path, output: Path, max_size: int | None, start: int = 0, stop: int | None = None,
-                 fps: float | None = None) -> None:
+                 fps: float | None = None, clip: ClipInfo | None = None) -> None:
+        """clip: the source's ClipInfo when the caller has probed it already (else probed here)."""
         self.source, self.output = Path(source), Path(output)
-        self.clip = probe_clip(self.source, fps=fps)
+        self.clip = clip if clip is not None else probe_clip(self.source, fps=fps)
         self.stop = self.clip.frame_count if stop is None else min(stop, self.clip.frame_count)
         if start < 0 or start >= self.stop:
             raise InputError(f"--start {start} / --stop {stop}: the range is empty for '{self.source}' "
