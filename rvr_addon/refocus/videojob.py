@@ -2,6 +2,7 @@
 step (Job protocol), the file appearing only when complete (:class:`~rvr_addon.io.writer.VideoWriter`)."""
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import Any, Iterator
 
 import numpy as np
@@ -9,7 +10,7 @@ import numpy as np
 from ..io.writer import VideoWriter
 
 
-class VideoWriteJob:
+class VideoWriteJob(ABC):
     """Base of a job writing ``total`` frames: subclasses give :meth:`open` (the items and the
     writer) and :meth:`frame` (one item -> one uint8 RGB frame); ``what`` names the output in
     the cancel text."""
@@ -29,13 +30,13 @@ class VideoWriteJob:
         """Fraction of frames written, 0..1."""
         return self.done / self.total if self.total else 1.0
 
+    @abstractmethod
     def open(self) -> tuple[Iterator[Any], VideoWriter]:
         """(the items to write, in order; the writer of the output)."""
-        raise NotImplementedError
 
+    @abstractmethod
     def frame(self, item: Any) -> np.ndarray:
         """The (H, W, 3) uint8 RGB frame written for ``item``."""
-        raise NotImplementedError
 
     def ended_early(self) -> None:
         """Called when the items end before ``total``: raise to refuse a short output (default: keep it)."""
