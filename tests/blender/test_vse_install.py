@@ -165,17 +165,29 @@ def blender_like_site(folder: Path) -> Path:
     return folder
 
 
-def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
+@pytest.fixture(scope="module")
+def zip_path(tmp_path_factory) -> Path:
+    """The extension zip, built once for this module's tests (skips when the wheels are not fetched)."""
     missing = build_extension.missing_wheels()
     if missing:
         pytest.skip(f"wheels {missing} are not fetched: run scripts/fetch_wheels.sh")
-    zip_path = build_extension.build(tmp_path / "dist")
+    return build_extension.build(tmp_path_factory.mktemp("dist"))
+
+
+def blender_env(tmp_path: Path) -> tuple[Path, dict, Path]:
+    """(the user folder Blender installs into, the child's environment: Blender's user folders
+    there and only what Blender ships on the path, an empty work folder)."""
     user = tmp_path / "user"
     env = {**os.environ, "BLENDER_USER_RESOURCES": str(user), "BLENDER_USER_CONFIG": str(user / "config"),
            "BLENDER_USER_SCRIPTS": str(user / "scripts"), "BLENDER_USER_EXTENSIONS": str(user / "extensions"),
            "PYTHONPATH": str(blender_like_site(tmp_path / "blender_site")), "PYTHONNOUSERSITE": "1"}
     work = tmp_path / "work"
     work.mkdir()
+    return user, env, work
+
+
+def test_zip_installs_and_runs_the_workflow(tmp_path, zip_path, vse_clip, vse_depth):
+    user, env, work = blender_env(tmp_path)
     frame = ""  # the people cue sees the shared interview clip's split screen (two people) when present
     if INTERVIEW.is_file():
         from rvr_addon.io.video import iter_frames
@@ -205,7 +217,7 @@ def test_zip_installs_and_runs_the_workflow(tmp_path, vse_clip, vse_depth):
         assert r["people"] == []
 
 
-def test_zip_runs_every_preset_and_the_render_without_torch(tmp_path, vse_clip):
+def test_zip_runs_every_preset_and_the_render_without_torch(tmp_path, zip_path, vse_clip):
     """The zip alone, in a Python with only what Blender ships (no torch): Analyze with the
     estimator network (its ONNX export on onnxruntime from the zip), Track, every Auto Focus
     preset (Learned = AF-Net's export; Conversation with the zip's webrtcvad, then without it:
@@ -213,17 +225,8 @@ def test_zip_runs_every_preset_and_the_render_without_torch(tmp_path, vse_clip):
     not all 0. Slow (a minute or two: every detector on a tiny clip)."""
     from rvr_addon.laaf.presets import PRESETS
 
-    missing = build_extension.missing_wheels()
-    if missing:
-        pytest.skip(f"wheels {missing} are not fetched: run scripts/fetch_wheels.sh")
-    zip_path = build_extension.build(tmp_path / "dist")
-    user = tmp_path / "user"
-    env = {**os.environ, "BLENDER_USER_RESOURCES": str(user), "BLENDER_USER_CONFIG": str(user / "config"),
-           "BLENDER_USER_SCRIPTS": str(user / "scripts"), "BLENDER_USER_EXTENSIONS": str(user / "extensions"),
-           "PYTHONPATH": str(blender_like_site(tmp_path / "blender_site")), "PYTHONNOUSERSITE": "1"}
+    user, env, work = blender_env(tmp_path)
     env.pop("RVR_INFERENCE", None)
-    work = tmp_path / "work"
-    work.mkdir()
     presets = list(PRESETS)
     done = subprocess.run([sys.executable, "-S", "-c", SCRIPT_NO_TORCH, str(zip_path), str(vse_clip), str(work),
                            ",".join(presets)], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
