@@ -98,6 +98,13 @@ def _aperture_spec(args: argparse.Namespace):
                         squeeze=args.squeeze, kernel_image=image, cat_eye=args.cat_eye)
 
 
+def add_device_arg(p: argparse.ArgumentParser) -> None:
+    """``--device auto|cpu|cuda``: where the renderer runs (:mod:`.render.device`)."""
+    from .render import DEVICE_HELP, DEVICES
+
+    p.add_argument("--device", choices=DEVICES, default="auto", help=DEVICE_HELP)
+
+
 def add_render_parser(sub) -> None:
     p = sub.add_parser("render", help="render shallow depth of field for a clip",
                        description="Render a shallow-DOF video from frames + a disparity sequence "
@@ -128,6 +135,7 @@ def add_render_parser(sub) -> None:
     p.add_argument("--no-audio", action="store_true", help="do not copy the source audio")
     p.add_argument("--min-layers", type=int, default=1, help="use at least this many depth layers")
     p.add_argument("--scale", type=float, default=1.0, help="render at this fraction of the size (0.5 = half-size proxy)")
+    add_device_arg(p)
     p.add_argument("-o", "--output", action="append", type=Path, default=None,
                    help="output .mp4 or image folder (repeatable; a folder/frame_%%05d.exr pattern "
                         "writes linear EXR)")
@@ -162,7 +170,7 @@ def demo_settings(args: argparse.Namespace):
     return RenderSettings(input=d / "frames", depth=d / "disparity", hdr=d / "hdr_exponent",
                           track=d / "focus_track.json", outputs=outputs, spec=_aperture_spec(args),
                           naive=args.naive, fps=float(meta.get("fps", 24)), min_layers=args.min_layers,
-                          scale=args.scale)
+                          scale=args.scale, device=args.device)
 
 
 def cmd_render(args: argparse.Namespace) -> int:
@@ -181,7 +189,7 @@ def cmd_render(args: argparse.Namespace) -> int:
             aperture=args.aperture, track=args.track, spec=_aperture_spec(args),
             depth_scale=args.depth_scale, depth_offset=args.depth_offset, naive=args.naive,
             start=args.start, stop=args.stop, fps=args.fps, keep_audio=not args.no_audio,
-            min_layers=args.min_layers, scale=args.scale)
+            min_layers=args.min_layers, scale=args.scale, device=args.device)
     job = RenderJob(settings)
     job.run(progress=not args.quiet)
     for out in settings.outputs:

@@ -22,6 +22,7 @@ from .io.track import FocusTrack, constant_track, load_track, resolve_track, war
 from .io.video import ClipInfo, iter_frames, probe_clip
 from .io.writer import ImageSequenceWriter, VideoWriter
 from .render.aperture import ApertureSpec
+from .render.device import make_renderer
 from .render.fast import FastRenderer
 from .render.model import K_HDR, hdr_radiance
 
@@ -48,6 +49,8 @@ class RenderSettings:
         replaces start/stop. The track is then keyed by output frame (0 = the first), and a
         video output gets no audio (its timing no longer matches the clip's).
     output_fps: frame rate of a video output (frames/s; None = the clip's).
+    device: where to render: "auto" (CUDA when torch sees a GPU, else the fast CPU renderer),
+        "cpu" or "cuda" (:mod:`.render.device`).
     """
 
     input: Path
@@ -71,6 +74,7 @@ class RenderSettings:
     scale: float = 1.0
     frames: Sequence[int] | None = None
     output_fps: float | None = None
+    device: str = "auto"
 
 
 def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_level: float = 0.999) -> np.ndarray:
@@ -194,6 +198,9 @@ class RenderJob:
             raise InputError(f"--focus must be a finite disparity, got {s.focus}")
         if not (0 < s.scale <= 4):
             raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
+        # --device cuda without a GPU is refused before any file is read
+        self.renderer = make_renderer(s.device, spec=s.spec, naive=s.naive, max_step=s.max_step,
+                                      min_layers=s.min_layers)
         check_outputs("render", [("output", out) for out in s.outputs],
                       [("input", s.input), ("depth", s.depth), ("HDR", s.hdr), ("track", s.track)])
         self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)
@@ -223,7 +230,6 @@ class RenderJob:
         if self.track is None and s.track is not None:
             self.track = load_track(s.track)
             warn_keys_beyond(self.track, self.clip.frame_count if self.frame_list is None else self.total, s.input)
-        self.renderer = FastRenderer(spec=s.spec, naive=s.naive, max_step=s.max_step, min_layers=s.min_layers)
         self.done = 0
         self.text = f"rendering {self.total} frames of {self.clip.path.name}"
         self._frames: Iterator[np.ndarray] | None = None
@@ -279,6 +285,8 @@ class RenderJob:
         a lot: the work counted on the first frame's disparity at the largest aperture of the track."""
         from .render.cost import cost_warning
 
+        if not isinstance(self.renderer, FastRenderer):  # the cost model is the CPU path's
+            return
         finite = first_d[np.isfinite(first_d)]
         if not finite.size:
             return

@@ -82,6 +82,9 @@ def add_parser(sub) -> None:
     p.add_argument("--no-stabilize", action="store_true", help="skip the temporal filter of the depth")
     p.add_argument("--weights", type=Path, help="estimator weights (default: the shipped ones)")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
+    from ..render import DEVICE_HELP, DEVICES
+
+    p.add_argument("--device", choices=DEVICES, default="auto", help=DEVICE_HELP)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=cmd_refocus)
 
@@ -127,7 +130,7 @@ def settings_from_args(args: argparse.Namespace):
         duration_s=args.duration, max_size=args.max_size or None, side_by_side=side, preview=sheet,
         depth_method=args.depth_method, hfov_deg=args.hfov, window_s=args.window, causal=args.causal, weights=args.weights, fps=args.fps,
         stabilize=not args.no_stabilize, calm=args.calm, cuts=cut_list, detect_cuts=not args.no_cuts,
-        track=args.track)
+        track=args.track, device=args.device)
 
 
 def run_with_progress(chain, quiet: bool) -> None:

@@ -75,6 +75,8 @@ class RefocusSettings:
     track: Path | None = None
     """A focus file or track to render with instead of running the autofocus (e.g. the
     ``OUT.focus.json`` of an earlier run, edited); frames and units of the working copy."""
+    device: str = "auto"
+    """Where the render stage runs: auto (CUDA when torch sees a GPU, else the CPU), cpu or cuda."""
 
 
 def default_work_folder(source: Path, output: Path) -> Path:
@@ -159,6 +161,9 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     from .proxy import ProxyJob, needs_proxy, proxy_size
 
     check_outputs(s)
+    from ..render.device import resolve_device
+
+    resolve_device(s.device)  # --device cuda without a GPU: refused before any work
     if s.track is not None and not Path(s.track).is_file():
         raise InputError(f"--track {s.track}: no such focus file; give the OUT.focus.json of an earlier run")
     if not Path(s.input).exists():
@@ -263,7 +268,7 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         from ..pipeline import RenderJob, RenderSettings
 
         return RenderJob(RenderSettings(input=run.clip, depth=run.cache, hdr=run.cache, outputs=[Path(s.output)],
-                                        track=run.focus_file, spec=s.spec, fps=s.fps))
+                                        track=run.focus_file, spec=s.spec, fps=s.fps, device=s.device))
 
     def finish_render(job) -> None:
         run.outputs.append(Path(s.output))
