@@ -299,7 +299,9 @@ def cmd_eval_focus_real(args: argparse.Namespace) -> int:
             chose = f" (auto chose {g(k + '.auto_chose')})" if g(k + ".auto_chose") else ""
             print(f"{p} {label}{chose}: speaking share {g(k + '.speaking_share')}, turns led "
                   f"{g(k + '.turns_led')}/{g(k + '.turns_changed')}, lead mean {g(k + '.lead_frames_mean')} frames, "
-                  f"spurious {g(k + '.spurious_per_min')}/min, pulls across cuts {g(k + '.pulls_across_cuts')}")
+                  f"spurious {g(k + '.spurious_per_min')}/min, pulls across cuts {g(k + '.pulls_across_cuts')}"
+                  + (f", off-screen speech: {g(k + '.offscreen_changes')} changes, moved "
+                     f"{g(k + '.offscreen_moved_share')}" if g(k + ".offscreen_changes") is not None else ""))
     print(f"wrote {args.output / 'summary.json'}, {args.output / 'details.json'}")
     return 0
 

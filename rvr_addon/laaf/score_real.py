@@ -29,6 +29,12 @@ Figures (:func:`score_focus`):
   minute of the scored frames.
 - ``pulls_across_cuts``: pulls (runs of ``pull`` frames to one target) that contain an
   annotated cut and the frame before it.
+- Off-screen speech (annotation key ``offscreen``: ``[{"start_s", "end_s"}]``, a voice no face
+  on screen utters): ``offscreen_changes``, governing-target changes inside those segments
+  (those within 1 s before the next turn starts excepted: a look-ahead pull to the next
+  speaker), and ``offscreen_moved_share``, the share of their frames whose governing box centre
+  is no longer in the region (the annotation's panel boxes, else the turn boxes) it was in at
+  the segment's start: focus pulled to a silent face. Absent (None) without such segments.
 """
 from __future__ import annotations
 
@@ -131,6 +137,25 @@ def score_focus(focus_doc: dict, annotation: dict) -> dict:
     spurious = [k for k in changes if all(abs(k - c) > fps for c in near)]
     minutes = n / fps / 60.0
 
+    regions = [p["box"] for p in ann.get("panels", [])] or [t["box"] for t in turns]
+
+    def region_of(box):
+        return next((i for i, r in enumerate(regions) if _inside(box, r)), None)
+
+    off_changes, off_frames, off_moved = 0, 0, 0
+    for seg in ann.get("offscreen", []):
+        a, b = max(frame(float(seg["start_s"])), start), min(frame(float(seg["end_s"])), stop)
+        if b <= a:
+            continue
+        nxt = [r["start"] for r in per_turn if r["start"] >= a]
+        lead_from = (min(nxt) - int(round(fps))) if nxt else b
+        off_changes += sum(1 for k in changes if a < k < min(b, lead_from))
+        home = region_of(boxes[a - start])
+        for k in range(a, min(b, lead_from)):
+            off_frames += 1
+            off_moved += region_of(boxes[k - start]) != home
+    has_off = bool(ann.get("offscreen"))
+
     crossing = 0
     for c in ann_cuts:
         if start < c < stop and states[c - start] == "pull" and states[c - 1 - start] == "pull" \
@@ -154,11 +179,13 @@ def score_focus(focus_doc: dict, annotation: dict) -> dict:
         "spurious_per_min": round(len(spurious) / minutes, 3) if minutes > 0 else None,
         "cuts_annotated": len(ann_cuts),
         "pulls_across_cuts": crossing,
+        "offscreen_changes": off_changes if has_off else None,
+        "offscreen_moved_share": (round(off_moved / off_frames, 4) if off_frames else 0.0) if has_off else None,
     }
 
 
 FIGURES = ("speaking_share", "turns_led", "turns_changed", "turns_led_landed", "turns_missed", "lead_frames_mean",
-           "spurious_per_min", "pulls_across_cuts")
+           "spurious_per_min", "pulls_across_cuts", "offscreen_changes", "offscreen_moved_share")
 
 
 def evaluate_real(clip: Path, annotation: Path, output: Path, presets, *, cache=None, depth=None, causal_too=False,

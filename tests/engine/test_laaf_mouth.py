@@ -43,12 +43,12 @@ def voice(n=150, seed=0):
     return env.astype(np.float32), voiced
 
 
-def run(openings: dict[str, np.ndarray | None], env, voiced, causal=False, boxes=BOXES):
+def run(openings: dict[str, np.ndarray | None], env, voiced, causal=False, boxes=BOXES, **kw):
     """Feed per-frame mouth openings (None: the mesh found no face) straight into ``ingest``;
     each frame is decided once its look-ahead is in (as LAAF does): ``det.decided[t]``."""
     n = len(env)
     audio = AudioTrack(voiced, env, voiced.astype(np.float32), FPS)
-    det = SpeechDetector(FixedFaces(boxes), FPS, n, audio=audio, causal=causal, sync=False, mouth="motion")
+    det = SpeechDetector(FixedFaces(boxes), FPS, n, audio=audio, causal=causal, sync=False, mouth="motion", **kw)
     det.decided = {}
     gray = np.zeros((120, 200), np.uint8)
     frame = AnalysisFrame(0, np.zeros((120, 200, 3), np.uint8), gray, None, 1.0, FPS)
@@ -87,12 +87,13 @@ def test_the_face_whose_mouth_opens_with_the_voice_speaks(speaker, causal):
 
 
 def test_a_feed_delayed_against_the_sound_is_still_found():
-    """Split-screen interviews: one feed's video lags the mixed audio; the track's lag is learnt."""
+    """Split-screen interviews: one feed's video can lag the mixed audio; with ``max_lag_s`` (off by
+    default: it chose wrong lags on real clips) the track's lag is learnt."""
     env, voiced = voice(n=200)
     n = len(env)
     talk = 0.05 + 0.4 * env / env.max()
     delayed = np.concatenate([np.full(4, 0.05), talk[:-4]])  # the mouth shows 4 frames after the sound
-    det = run({"A": chewing(n), "B": delayed}, env, voiced)
+    det = run({"A": chewing(n), "B": delayed}, env, voiced, max_lag_s=0.24)
     assert det.track_lag("B") == 4
     decided = [det.decided[t][2] for t in range(80, n - 8)]
     assert decided.count("B") >= 0.9 * len(decided)
