@@ -51,6 +51,7 @@ class RenderSettings:
     output_fps: frame rate of a video output (frames/s; None = the clip's).
     device: where to render: "auto" (CUDA when torch sees a GPU, else the fast CPU renderer),
         "cpu" or "cuda" (:mod:`.render.device`).
+    threads: blur threads of the CPU renderer (None: its default; a batch task passes its budget).
     """
 
     input: Path
@@ -75,6 +76,7 @@ class RenderSettings:
     frames: Sequence[int] | None = None
     output_fps: float | None = None
     device: str = "auto"
+    threads: int | None = None
 
 
 def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_level: float = 0.999) -> np.ndarray:
@@ -200,7 +202,7 @@ class RenderJob:
             raise InputError(f"--scale must be in (0, 4] (e.g. 0.5 for a half-size proxy), got {s.scale}")
         # --device cuda without a GPU is refused before any file is read
         self.renderer = make_renderer(s.device, spec=s.spec, naive=s.naive, max_step=s.max_step,
-                                      min_layers=s.min_layers)
+                                      min_layers=s.min_layers, threads=s.threads)
         check_outputs("render", [("output", out) for out in s.outputs],
                       [("input", s.input), ("depth", s.depth), ("HDR", s.hdr), ("track", s.track)])
         self.clip: ClipInfo = probe_clip(s.input, fps=s.fps)

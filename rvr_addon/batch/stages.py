@@ -272,6 +272,7 @@ def render(plan: ClipPlan, settings: BatchSettings, a: int, b: int, focus: dict)
     """Render frames [a, b) (``RenderJob``: stabilized D and E of the cache, the LAAF track)
     into an image sequence in the work folder (skipped when it is complete already)."""
     from ..pipeline import RenderJob, RenderSettings
+    from .worker import worker_task_threads
 
     def run():
         out = render_dir(plan, a, b)
@@ -279,7 +280,8 @@ def render(plan: ClipPlan, settings: BatchSettings, a: int, b: int, focus: dict)
             return {"frames": b - a, "reused": True}  # the writer swaps a folder in only when complete
         job = RenderJob(RenderSettings(
             input=plan.source, depth=plan.cache, hdr=plan.cache, outputs=[out / f"frame_%05d{_suffix(settings)}"],
-            track=focus_work_path(plan), start=a, stop=b, fps=settings.fps, keep_audio=False, scale=settings.scale))
+            track=focus_work_path(plan), start=a, stop=b, fps=settings.fps, keep_audio=False, scale=settings.scale,
+            threads=worker_task_threads()))  # the renderer's blur pool keeps to --task-threads too
         job.run(progress=False)
         return {"frames": b - a, "reused": False}
 

@@ -71,6 +71,18 @@ def worker_model(weights: Path | None):
     return load_estimator(weights)
 
 
+def worker_task_threads() -> int | None:
+    """The thread budget of a task in this worker (its plugin's ``task_threads``, i.e. ``rvr batch
+    --task-threads``), or None outside a batch worker."""
+    try:
+        from distributed import get_worker
+
+        plugin = get_worker().plugins.get(PLUGIN_NAME)
+    except (ImportError, ValueError):
+        return None
+    return getattr(plugin, "task_threads", None)
+
+
 def loads_per_worker(client) -> dict[str, int]:
     """{worker address: number of estimator loads} of a running cluster (for tests and logs)."""
     def _loads(dask_worker) -> int:

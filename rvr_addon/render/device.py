@@ -96,13 +96,16 @@ def resolve_device(device: str = "auto", flag: str = "--device") -> str:
 
 
 def make_renderer(device: str = "auto", *, spec: ApertureSpec | None = None, naive: bool = False,
-                  max_step: float = 1.0, min_layers: int = 1, flag: str = "--device") -> Any:
+                  max_step: float = 1.0, min_layers: int = 1, threads: int | None = None,
+                  flag: str = "--device") -> Any:
     """The renderer for ``device`` (see :func:`resolve_device`): a :class:`.fast.FastRenderer` on
-    the CPU, a :class:`TorchRenderer` on CUDA. Both have ``render_linear`` / ``render_srgb``."""
+    the CPU, a :class:`TorchRenderer` on CUDA. Both have ``render_linear`` / ``render_srgb``.
+    threads: the CPU renderer's blur threads (None: its default, up to 4)."""
     spec = spec or ApertureSpec()
     if resolve_device(device, flag) == "cuda":
         return TorchRenderer(spec=spec, naive=naive, max_step=max_step, min_layers=min_layers, device="cuda")
-    return FastRenderer(spec=spec, naive=naive, max_step=max_step, min_layers=min_layers)
+    extra = {} if threads is None else {"threads": int(threads)}
+    return FastRenderer(spec=spec, naive=naive, max_step=max_step, min_layers=min_layers, **extra)
 
 
 def fft_size(n: int) -> int:

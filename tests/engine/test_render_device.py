@@ -189,3 +189,12 @@ def test_cuda_equals_torch_cpu(focus, aperture):
 def test_cuda_render_job_uses_the_gpu():
     assert isinstance(make_renderer("cuda"), TorchRenderer)
     assert isinstance(make_renderer("auto"), TorchRenderer)
+
+
+def test_a_thread_budget_reaches_the_cpu_renderer():
+    """rvr batch passes its --task-threads to the render's blur pool (RenderSettings.threads)."""
+    from rvr_addon.batch.worker import worker_task_threads
+
+    assert make_renderer("cpu", threads=1).threads == 1
+    assert make_renderer("cpu").threads == FastRenderer().threads
+    assert worker_task_threads() is None  # not in a Dask worker
