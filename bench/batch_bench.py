@@ -1,7 +1,7 @@
 """rvr batch throughput: frames per second for 1 and 2 local worker processes.
 
     .venv/bin/python bench/batch_bench.py [--clips 4] [--frames 48] [--size 640x360] [--chunk-frames 24]
-                                          [--workers 1 2] [--weights W] [--quick]
+                                          [--workers 1 2] [--weights W] [--quick] [--cores-only]
 
 Input: ``--clips`` clips of ``--frames`` frames at ``--size``, cut from consecutive stretches
 of ``../shared/data/clips/visualvoice_interview.mp4`` (a TV interview: faces, speech; 25 fps)
@@ -23,7 +23,10 @@ per clip), ``render``, ``finalize`` (encode), and ``batch.task.total.<size>.(cpu
 ``batch.laaf.<size>.measure_mb_per_frame`` the LAAF measurement files (kept until the clip's autofocus task ends);
 ``batch.io.list_cpu_s_per_packet``, ``batch.io.list_cpu_s_per_call`` (listing packets without decoding, on
 ``--clip``) and ``batch.io.<size>.decode_cpu_s_per_frame`` (the first clip) what positioning a chunk costs.
-Tables go to stderr; the last stdout line is DESIGN.md's flat JSON.
+``--cores-only``: no cluster; ``batch.cores.<stage>.<size>.per_task``, the cores one task of each stage
+uses (CPU of the process and its ffmpeg children over that of the task's thread: robust to other
+load, unlike ``batch.speedup_2_vs_1`` on a shared machine). Tables go to stderr; the last stdout
+line is DESIGN.md's flat JSON.
 """
 from __future__ import annotations
 
@@ -96,6 +99,51 @@ def measure_mb_per_frame(clip: Path, cache: Path, folder: Path, preset: str | No
     return path.stat().st_size / 2**20 / n
 
 
+def cores_per_task(clip: Path, folder: Path, label: str, threads: int = 1) -> dict[str, float]:
+    """How many cores one task of each stage would use on an idle machine, measured so that other
+    load does not change it: the stage's job runs in this process with torch/OpenCV at ``threads``
+    (``--task-threads``), and ``batch.cores.<stage>.<size>.per_task`` = CPU of the process and its
+    ffmpeg children / CPU of the calling thread (the task's critical path when it never waits).
+    ``render`` renders with the blur pool at ``threads`` as the batch does now, ``render_pool_default``
+    with the renderer's own default (up to 4 threads; what batch tasks did before); the MP4 encode
+    (ffmpeg's libx264 threads) is ``render_mp4``."""
+    import resource
+    import time
+
+    import cv2
+    import torch
+
+    from rvr_addon.cli import main as rvr
+    from rvr_addon.pipeline import RenderJob, RenderSettings
+
+    torch.set_num_threads(threads)
+    cv2.setNumThreads(threads)
+
+    def clock() -> tuple[float, float]:
+        r = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.thread_time(), time.process_time() + r.ru_utime + r.ru_stime
+
+    cache, track = folder / "cores_cache", folder / "cores_focus.json"
+
+    def render(out: str, pool: int | None) -> None:
+        RenderJob(RenderSettings(input=clip, depth=cache, hdr=cache, track=track, outputs=[folder / out],
+                                 device="cpu", threads=pool)).run(progress=False)
+
+    steps = [("estimate", lambda: rvr(["estimate", str(clip), "-o", str(cache), "-q"])),
+             ("stabilize", lambda: rvr(["stabilize", str(cache), "-q"])),
+             ("autofocus", lambda: rvr(["autofocus", str(clip), "--cache", str(cache), "-o", str(track), "-q"])),
+             ("render", lambda: render("r1/frame_%05d.exr", threads)),
+             ("render_pool_default", lambda: render("r2/frame_%05d.exr", None)),
+             ("render_mp4", lambda: render("r3.mp4", threads))]
+    out = {}
+    for stage, fn in steps:
+        t0, c0 = clock()
+        fn()
+        t1, c1 = clock()
+        out[f"batch.cores.{stage}.{label}.per_task"] = round((c1 - c0) / max(t1 - t0, 1e-9), 3)
+    return out
+
+
 def size_label(size: tuple[int, int]) -> str:
     return f"{size[1]}p" if size[1] in (360, 720, 1080, 2160) else f"{size[0]}x{size[1]}"
 
@@ -110,6 +158,8 @@ def main() -> int:
     ap.add_argument("--weights", type=Path, help="estimator weights (default: the shipped file, else untrained)")
     ap.add_argument("--clip", type=Path, default=CLIP, help="source video the clips are cut from")
     ap.add_argument("--quick", action="store_true", help="2 clips of 12 frames at 160x90 (checks the plumbing)")
+    ap.add_argument("--cores-only", action="store_true",
+                    help="only batch.cores.*: cores one task of each stage uses (robust to other load), no cluster")
     args = ap.parse_args()
     if args.quick:
         args.clips, args.frames, args.size, args.chunk_frames = 2, 12, "160x90", 6
@@ -128,6 +178,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         clips = make_clips(args.clip, args.clips, args.frames, size, tmp / "clips")
+        if args.cores_only:
+            out.update(cores_per_task(clips[0], tmp, label))
+            print(json.dumps(out))
+            return 0
         weights = args.weights
         from rvr_addon.estimate.infer import SHIPPED_WEIGHTS
 
