@@ -169,8 +169,8 @@ class SpeechDetector(FocusDetector):
                  sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
                  mouth: str = "auto", mouth_window_s: float = 1.0, mouth_min_activity: float = 0.02,
                  max_lag_s: float = 0.0, mouth_rel_activity: float = 0.5, none_score: float = 0.15,
-                 switch_cost: float = 3.0, voice_weight: float = 0.7, smooth_s: float = 0.5,
-                 mesh_every: int = 1, motion_weight: float = 0.5) -> None:
+                 switch_cost: float = 8.0, voice_weight: float = 0.7, smooth_s: float = 0.5,
+                 mesh_every: int = 1, motion_weight: float = 0.5, seg_margin: int = 2) -> None:
         if mouth not in MOUTH_MODES:
             raise ValueError(f"speech detector: mouth={mouth!r} is not one of {', '.join(MOUTH_MODES)}")
         self.faces = faces
@@ -189,12 +189,14 @@ class SpeechDetector(FocusDetector):
         self.smooth = 0 if causal else max(0, int(round(smooth_s * fps)))
         self.mesh_every = max(1, int(mesh_every))
         self.motion_weight = float(motion_weight)
+        self.seg_margin = max(0, int(seg_margin))
         self.mesh = MediaPipeFaces(detect=False) if mouth == "mesh" or (mouth == "auto" and mediapipe_importable()) \
             else None
         self._mesh_required = mouth == "mesh"
         # a frame's evidence needs its window's future; its decision the smoother's too
         self.lookahead_frames = 0 if causal else max(self.radius + (max(0, int(sync_margin)) if sync else 0),
-                                                     self.mouth_radius + self.max_lag + self.smooth)
+                                                     self.mouth_radius + self.max_lag + self.smooth,
+                                                     max(0, int(seg_margin)) + self.max_lag + self.smooth)
         self.sync_min_corr = sync_min_corr
         self.sync_margin = max(0, int(sync_margin))
         self.sync_box_frac = sync_box_frac
@@ -371,13 +373,14 @@ class SpeechDetector(FocusDetector):
     def _evidence(self, t: int) -> dict[str, float]:
         """Per face track on frame t, its score as the speaker (module docstring); {} when t
         is silent or no face is on it."""
-        if not self.available or self._window(t) is None:
+        win = self._window(t, margin=self.seg_margin) if self.available else None
+        if win is None:
             return {}
-        lo, hi = self._window(t)
+        lo, hi = win
         frames = list(range(lo, hi + 1))
         env = self.audio.envelope[frames].astype(np.float64)
         faces = self.faces.faces_at(t) if self.faces is not None else []
-        mwin = self._window(t, radius=self.mouth_radius)
+        mwin = self._window(t, margin=self.seg_margin, radius=self.mouth_radius)
         meshed, motion = {}, {}
         for _, _, tid in faces:
             if tid is None:
