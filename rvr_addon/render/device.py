@@ -186,7 +186,7 @@ class TorchRenderer:
             s_min, s_max = torch.stack(torch.aminmax(s)).tolist()
             plan = plan_layers(s_min, s_max, max_step=self.max_step, min_layers=self.min_layers)
         j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
-        u = (s / np.float32(plan.step)).clamp(j_lo, j_hi)
+        u = (s / float(np.float32(plan.step))).clamp(j_lo, j_hi)  # a Python scalar: fine on any device
         norm, layers = self._normaliser_and_layers(u, plan)
         radiance1 = torch.cat([radiance, torch.ones_like(radiance[:1])])  # [L, 1]: colour and matte
         acc = torch.zeros_like(radiance)
