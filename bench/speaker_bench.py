@@ -1,5 +1,6 @@
-"""Who speaks, on real clips: LAAF's speech detector before (dlib HOG faces + box mouth motion)
-and after (MediaPipe faces + face-mesh mouth opening correlated with the voice).
+"""Who speaks, on real clips: LAAF's speech detector with dlib HOG faces + box mouth motion
+("before") and with MediaPipe faces + face-mesh mouth opening and mouth motion correlated with
+the voice ("after", the default); both decide through the same decision chain (speech.py).
 
 Clips from ../shared/data/clips (relative to the repository root; a missing clip is skipped):
 

@@ -29,9 +29,15 @@ mode by the best path ending at t. The heat map is the speaking face's box; nobo
 off-screen speech) is an empty map and the combination keeps its focus, never moving it onto a
 silent face. A per-track audio-video lag can be learnt (``max_lag_s`` > 0: the lag within
 +-max_lag_s maximising the track's correlation over its voiced history; split-screen feeds can
-be delayed), off by default: on the composite clips of real talking heads (no delay) and on
-the interview it chose wrong lags (syllables repeat every ~5 frames) and lowered the share of
-frames attributed right (0.81 -> 0.66, 0.56 -> 0.57).
+be delayed), off by default: measured with the mesh alone (1 s windows, frame by frame), it
+chose wrong lags (syllables repeat every ~5 frames) and lowered the share of frames attributed
+right on the interview-halves composite from 0.81 to 0.66 (the interview: 0.56 vs 0.57; the
+GRID + restaurant composite: 0.78 both).
+
+The mesh-read faces' evidence averages the opening's correlation with the motion cues' below
+(``motion_weight``): on the interview the mesh alone is right on 0.49 of the annotated voiced
+frames, the motion cues alone 0.81, the average 0.74-0.85; on the GRID + restaurant composite
+0.81, 0.79 and 0.85-0.89 (``scripts/composite_speakers.py``; 2026-12-02).
 
 **Fallback, without a face mesh** (mediapipe missing, ``mouth='motion'``, or a face the mesh does
 not find: a profile, a drawn face): the raw motion of the box's mouth region.
