@@ -119,3 +119,17 @@ def test_interview_annotation_matches_clip():
     assert (info.width, info.height) == (1280, 720)
     assert abs(info.fps - ann["fps"]) < 0.01
     assert max(t["end_s"] for t in ann["turns"]) * ann["fps"] <= info.frame_count and info.has_audio
+
+
+def test_offscreen_figures():
+    """Off-screen speech: target changes inside the segment (but not within 1 s before the next
+    turn) and the share of its frames whose focus left the panel it was on."""
+    doc = synthetic_doc()  # t1 on the right 28-57, t2 far away (nobody) from 58, t3 right from 70
+    ann = {"fps": 10.0, "panels": [{"box": L}, {"box": R}, {"box": [150, 150, 100, 100]}],
+           "turns": [{"start_s": 3.0, "end_s": 4.0, "box": R}, {"start_s": 8.0, "end_s": 9.0, "box": L}],
+           "offscreen": [{"start_s": 5.0, "end_s": 7.5}]}
+    s = score_focus(doc, ann)
+    # frames 50-74 (before 8.0 s - 1 s = frame 70): the change at 58 counts, the one at 70 does not
+    assert s["offscreen_changes"] == 1
+    assert s["offscreen_moved_share"] == round(12 / 20, 4)  # 58-69 on the far box, off the right panel
+    assert score_focus(doc, {k: v for k, v in ann.items() if k != "offscreen"})["offscreen_changes"] is None
