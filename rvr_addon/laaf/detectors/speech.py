@@ -153,8 +153,8 @@ class SpeechDetector(FocusDetector):
     media: the clip file whose audio is decoded (a video), or None (no audio). audio: an
     AudioTrack given directly (tests), overriding media. faces: the FaceDetector whose tracks
     are scored (shared with H_face). causal: trailing window, no look-ahead.
-    min_corr: correlation (of 3-frame moving averages) a face needs to be called the speaker;
-    min_margin: by how much it must beat the next face.
+    min_corr: correlation (of 3-frame moving averages) at which the motion cues of a face the
+    mesh does not read score like ``none_score`` (below: less than nobody).
     mouth: 'auto' (face mesh where mediapipe imports, else motion), 'mesh' (required), 'motion'.
     mouth_window_s, mouth_min_activity, mouth_rel_activity (0: off), max_lag_s: the face-mesh
     evidence; none_score, switch_cost, voice_weight, smooth_s: the decision over time (module
@@ -171,7 +171,7 @@ class SpeechDetector(FocusDetector):
     name = "speech"
 
     def __init__(self, faces: FaceDetector, fps: float, n_frames: int, media=None, audio: AudioTrack | None = None,
-                 start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25, min_margin: float = 0.1,
+                 start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25,
                  sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
                  mouth: str = "auto", mouth_window_s: float = 1.0, mouth_min_activity: float = 0.02,
                  max_lag_s: float = 0.0, mouth_rel_activity: float = 0.5, none_score: float = 0.15,
@@ -183,7 +183,6 @@ class SpeechDetector(FocusDetector):
         self.fps = fps
         self.causal = causal
         self.min_corr = min_corr
-        self.min_margin = min_margin
         self.radius = max(2, int(round(window_s * fps / 2)))
         self.mouth_radius = max(2, int(round(mouth_window_s * fps / 2)))
         self.mouth_min_activity = mouth_min_activity
