@@ -971,7 +971,7 @@ class _Run:
                 both = (c_out > 0.5) & (prop[1] > 0.5) & np.isfinite(q_out) & np.isfinite(prop[0])
                 if both.sum() >= 100:
                     info["memory_disagreement"] = round(float(np.median(np.abs(np.log(prop[0][both] / q_out[both])))), 4)
-                q_chain, c_chain, c_cue = _merge(q_out, c_out, prop[0], prop[1], c_cue, prop[2])
+                q_chain, c_chain, c_cue = _merge(q_out, c_out, prop[0], prop[1], c_cue, prop[2] * np.float32(0.5 + 0.5 * f_snr))
                 info["propagated"] = True
         t.q, t.conf, t.epoch, t.cc = q_chain, c_chain, self.epoch, c_cue
         self._keep_track_depth(t)
