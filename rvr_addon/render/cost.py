@@ -2,18 +2,20 @@
 for many minutes without a word).
 
 The fast path (``fast.FastRenderer``) plans one layer per ``max_step`` px of blur radius and
-blurs and composites each layer on the boxes of its active tiles grown by the blur's footprint,
-so its work is the pixels of those boxes summed over the layers: ``FastRenderer.work_px``,
-cheap to count on the first frame (0.03-0.07 s at 1080p). Measured on the project's 2-core
-machine (loaded), 360p to 1080p, radii 8 to 32 px, busy and smooth depth: 3.6-7.4e-8 s per
-pixel of that work (:data:`S_PER_WORK_PX`). Without a frame to count on, every pixel in every
-layer is the worst case: ``pixels x layers`` with ``layers = 2 * max_radius / max_step + 1``.
+blurs and composites each layer on rectangles around its active tiles grown by the blur's
+footprint; ``FastRenderer.work_px`` sums the modelled cost of those rectangles (in px-equivalents
+of ``fast.WORK_NS_PER_PX``), cheap to count on the first frame (0.03-0.09 s at 1080p). Measured on
+the project's 2-core machine under a load of about 10 (other jobs), 360p and 1080p, radii 8 to 32
+px, the bench scene, a real estimated depth map and a busy synthetic one: 1.1-1.6e-7 s per unit of
+that work (:data:`S_PER_WORK_PX`; an idle machine is faster). Without a frame to count on, every
+pixel in every layer is the worst case: ``pixels x layers`` with
+``layers = 2 * max_radius / max_step + 1``.
 """
 from __future__ import annotations
 
 import math
 
-S_PER_WORK_PX = 6.0e-8
+S_PER_WORK_PX = 1.2e-7
 """Seconds per pixel of layer work (``FastRenderer.work_px``) of the fast path (module docstring)."""
 
 WARN_S_PER_FRAME = 5.0

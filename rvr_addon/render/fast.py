@@ -1,12 +1,19 @@
-"""Fast CPU inference path of the RVR forward model (numpy + OpenCV), exact to the model.
+"""Fast CPU inference path of the RVR forward model (numpy + OpenCV).
 
-The model is defined in :mod:`.model`. Speed comes from skipping work, never from
-approximating a kernel: per 16x16 tile we record which layers have a non-zero matte there,
-and each layer is blurred and composited only on boxes around its active tiles. The boxes
-of one layer are grown by the kernel radius and merged until disjoint, so every blurred
-footprint lies inside exactly one box and the result equals a full-frame blur. The fill of
-the coverage resolve (model step 5) is one push-pull over the frame: its first level is
-pulled straight from the colour planes and the full-resolution push is a bilinear upsampling.
+The model is defined in :mod:`.model`. Speed comes from skipping work: per 16x16 tile we record
+which layers have a non-zero matte there, and each layer is blurred and composited only on
+rectangles around its active tiles (each rectangle grown by the kernel's footprint, so that the
+blurred rectangles of a layer sum to the blur of the whole layer; they may overlap, as blurring
+and compositing are linear within a layer). How a layer's tiles are cut into rectangles is chosen
+per layer by a cost model (:func:`layer_rects`): one box per layer would blur a whole frame's worth
+of empty pixels on a depth map whose layers are thin bands (a real estimated one), one box per tile
+would pay the footprint's margin over and over. The planes (R, G, B and the coverage) stay
+separate from the source to the accumulators (no interleaving copies); large kernels are applied
+by a DFT with cached kernel spectra (:func:`blur_planes`). Layers with a radius from
+:data:`HALF_RES_RADIUS` px on are blurred at half resolution; ``half_res_radius=None`` renders
+every layer exactly. The fill of the coverage resolve (model step 5) is one push-pull over the
+frame: its first level is pulled straight from the colour planes and the full-resolution push is a
+bilinear upsampling.
 """
 from __future__ import annotations
 
@@ -15,6 +22,7 @@ from dataclasses import dataclass, field
 import os
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
+from typing import Any
 
 import cv2
 import numpy as np
@@ -39,19 +47,62 @@ from .model import (
 )
 
 Box = tuple[int, int, int, int]  # y0, y1, x0, x1 (half-open, px)
-HALF_RES_RADIUS = 12.0
-"""Layers blurred with a radius of at least this many px are blurred at half resolution (2x2
-area average, the kernel of half the radius, bilinear back up): a quarter of the pixels and of
-the kernel's area, for an error far below what the eye sees at such blur (bokeh rims soften by
-about a pixel; 45 dB against the exact model at 1080p, ``bench/render_bench.py`` measures it).
-Below 12 px the rim of a small, very bright highlight's bokeh would visibly soften (at 360p a
-threshold of 8 px gave 34 dB), so smaller radii stay exact. ``FastRenderer(half_res_radius=None)``
-keeps every layer exact."""
+HALF_RES_RADIUS = 16.0
+"""Layers blurred with a radius of at least this many px are blurred at half resolution (a 2x2
+area average, the kernel of half the radius, bilinear back up; all four planes, so a uniform colour
+stays exact): a quarter of the pixels and of the kernel's area. The reduced blur softens a bokeh
+rim by about a pixel, and the model's fill magnifies tiny coverage errors where an HDR background
+lies behind (the fill there is the bright background times ``1 - cov``), so the threshold is set by
+what the real estimated depth map of ``bench/render_bench.py`` keeps: against the exact path 12 px
+gave 39.7 dB there (45-67 dB on the bench scene), 16 px 48 dB (45.5 dB on the bench scene, whose
+HDR lights sit at 32 px). Measured and not used: a quarter resolution from 24 px (39 dB); blurring
+only radiance up to the 8-bit white reduced and HDR highlights exactly (sharp rims, but the colour
+and the coverage then take different blurs: a uniform colour brighter than white is no longer
+uniform); the coverage exactly at full resolution (58 dB on the real depth map even from 4 px, but
+the same mismatch, and its full-resolution blur costs most of what the reduction saves).
+``FastRenderer(half_res_radius=None)`` keeps every layer exact."""
 PUSH_PULL_NUMPY_BELOW = 16
-SCALAR_LIKE_ROWS = 4
-"""OpenCV's Python bindings take a 2-D array of shape (n, 1) with n <= this for a scalar."""
 """Push-pull levels with a side below this many px are done in plain numpy (they are tiny, and
 OpenCV's Python bindings read an (n <= 4, 1) array as a scalar)."""
+SCALAR_LIKE_ROWS = 4
+"""OpenCV's Python bindings take a 2-D array of shape (n, 1) with n <= this for a scalar."""
+
+# the cost model of a layer's rectangles, in ns, measured on the project's 2-core machine with one
+# OpenCV thread (the constants only rank ways of cutting a layer; cost.py turns work into seconds)
+RECT_NS = 40_000.0
+"""Fixed cost of one rectangle: Python, ~15 OpenCV calls, the hand-off to a worker thread."""
+CORE_NS = 6.0
+"""Per source pixel of a rectangle: the matte and the premultiplied source."""
+BOX_NS = 7.0
+"""Per pixel of a rectangle's blurred footprint: compositing (model step 4)."""
+UPSAMPLE_NS = 1.5
+"""Per full-resolution pixel of a reduced rectangle's footprint: the bilinear upsampling."""
+WORK_NS_PER_PX = 60.0
+"""``FastRenderer.work_px`` reports the modelled cost in units of this many ns (one pixel of a
+1080p layer box of the old one-box-per-layer path, so cost.S_PER_WORK_PX stays comparable)."""
+
+def blur_ns_per_px(kernel_side: int, channels: int = 4) -> float:
+    """Modelled ns per pixel of blurring ``channels`` float32 planes with a (k, k) kernel: directly
+    (``cv2.filter2D``, ~0.04 k^2 ns a plane) below :data:`DFT_FROM_SIDE`, else by a DFT of the box
+    (~9 ns a plane)."""
+    if kernel_side <= 1:
+        return 0.0
+    if kernel_side < DFT_FROM_SIDE:
+        return channels * (0.043 * kernel_side * kernel_side + 0.25)
+    return channels * 9.0
+
+
+@dataclass(frozen=True)
+class BlurTask:
+    """One rectangle of one layer: blur the radiance times the layer's matte, and the matte, over
+    ``core`` with ``kernel`` (flipped; a :class:`ZoneKernels`; at 1 / ``factor`` of the
+    resolution), giving the blurred footprint over ``box``."""
+
+    j: int
+    box: Box
+    core: Box
+    kernel: Any
+    factor: int
 
 
 @dataclass
@@ -60,6 +111,8 @@ class FastRenderer:
 
     tile: tile side in px for the activity map. max_step / min_layers: layer spacing (see
     :func:`.model.plan_layers`). naive: sum layers without occlusion (ablation only).
+    half_res_radius: radius (px) from which layers are blurred at half resolution (None: never,
+    the exact path).
     """
 
     spec: ApertureSpec = field(default_factory=ApertureSpec)
@@ -72,6 +125,7 @@ class FastRenderer:
     _kernels: dict = field(default_factory=dict, repr=False)
     _pool: ThreadPoolExecutor | None = field(default=None, repr=False)
     _tiles: dict = field(default_factory=dict, repr=False)
+    _spectra: "SpectrumCache" = field(default_factory=lambda: SpectrumCache(), repr=False)
 
     # -- public -------------------------------------------------------------------------
     def render_linear(
@@ -108,55 +162,45 @@ class FastRenderer:
         active = self._active_layers(u, j_lo, j_hi)
         h, w = u.shape
         channels = cv2.split(radiance.astype(np.float32, copy=False))
-        radiance1 = cv2.merge((*channels, np.ones((h, w), np.float32)))
-        zones = (zone_edges(h, self.spec.zones), zone_edges(w, self.spec.zones)) if self.spec.varies else None
-        tasks = []
-        for j in plan.indices[::-1]:  # front to back (model step 4)
-            tiles = active[int(j) - j_lo]
-            if tiles.any():
-                radius = abs(float(j) * plan.step)
-                kernel = self._kernel(radius)
-                if zones is not None and kernel.size > 1:
-                    kernel = ZoneKernels(*zones, [[self._kernel(radius, (zy, zx)) for zx in range(self.spec.zones)]
-                                                  for zy in range(self.spec.zones)])
-                reduced = None
-                factor = self._reduction(radius) if zones is None else 1
-                if factor > 1:
-                    reduced = (factor, self._kernel(radius / factor))
-                for box, core in layer_boxes(tiles, self.tile, kernel.shape[0] // 2, (h, w)):
-                    tasks.append((int(j), kernel, box, core, reduced))
-        acc = np.zeros((h, w, 4), dtype=np.float32)  # [sum T C, cov = sum T W] (model step 4)
+        tasks = self._plan_tasks(plan, active, (h, w))[0]
+        acc = [np.zeros((h, w), dtype=np.float32) for _ in range(4)]  # sum T C (RGB), cov = sum T W (step 4)
         hidden = np.zeros((h, w), dtype=np.float32)  # sum of V_i over layers i <= j - S
+        tl = self.tile
+        touched = np.zeros((-(-h // tl), -(-w // tl)), bool)  # tiles where `hidden` may be > 0
         visible: deque = deque()  # (layer, [(box, V)]) not yet added to `hidden`
         current = None
+        spectra = self._spectra
 
-        def blur(task):
-            j, kernel, box, core, reduced = task
-            return j, box, blur_layer_box(radiance1, u, inv_norm, float(j), kernel, box, core, reduced)
+        def blur(task: BlurTask):
+            return task, blur_task(channels, u, inv_norm, task, spectra)
 
-        # blurs run ahead on worker threads (OpenCV's DFT filter is single-threaded and
-        # releases the GIL); compositing stays in front-to-back order on this thread
-        for j, (y0, y1, x0, x1), src in self._map_ordered(blur, tasks):
-            if j != current:
-                while visible and visible[0][0] <= j - OCCLUSION_DELAY:
+        # blurs run ahead on worker threads (OpenCV's filters are single-threaded and release the
+        # GIL); compositing stays in front-to-back order on this thread
+        for task, planes in self._map_ordered(blur, tasks):
+            if task.j != current:
+                while visible and visible[0][0] <= task.j - OCCLUSION_DELAY:
                     for (b0, b1, b2, b3), v in visible.popleft()[1]:
                         box_hidden = hidden[b0:b1, b2:b3]
                         cv2.add(box_hidden, v, dst=box_hidden)
+                        touched[b0 // tl:-(-b1 // tl), b2 // tl:-(-b3 // tl)] = True
                 if not self.naive:
-                    visible.append((j, []))
-                current = j
-            dst = acc[y0:y1, x0:x1]
+                    visible.append((task.j, []))
+                current = task.j
+            y0, y1, x0, x1 = task.box
             box_hidden = hidden[y0:y1, x0:x1]
-            if self.naive or not cv2.countNonZero(box_hidden):  # nothing in front: T = 1
-                cv2.add(dst, src, dst=dst)
+            if self.naive or not touched[y0 // tl:-(-y1 // tl), x0 // tl:-(-x1 // tl)].any():  # nothing in front: T = 1
+                for a, p in zip(acc, planes):
+                    dst = a[y0:y1, x0:x1]
+                    cv2.add(dst, p, dst=dst)
                 if not self.naive:
-                    visible[-1][1].append(((y0, y1, x0, x1), cv2.extractChannel(src, 3)))
+                    visible[-1][1].append((task.box, planes[3]))
             else:
                 t = cv2.max(cv2.subtract(1.0, box_hidden), 0.0)
-                cv2.accumulateProduct(src, cv2.merge((t, t, t, t)), dst)
-                visible[-1][1].append(((y0, y1, x0, x1), cv2.multiply(t, cv2.extractChannel(src, 3))))
+                for a, p in zip(acc, planes):
+                    cv2.accumulateProduct(p, t, a[y0:y1, x0:x1])
+                visible[-1][1].append((task.box, cv2.multiply(t, planes[3])))
         # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
-        *acc_rgb, cov = cv2.split(acc)
+        *acc_rgb, cov = acc
         weight = cv2.min(cov, 1.0)
         fill = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in channels], weight, u)  # model.fill_encode
         scale = cv2.divide(1.0, cv2.max(cov, 1.0))
@@ -184,8 +228,60 @@ class FastRenderer:
         radiance = hdr_radiance(srgb_to_linear(to_float01(image)), hdr_exponent)
         return linear_to_srgb(self.render_linear(radiance, disparity, focus, aperture))
 
+    def work_px(self, disparity: np.ndarray, focus: float, aperture: float) -> int:
+        """How much work a frame is, in px-equivalents (:data:`WORK_NS_PER_PX` of modelled cost
+        each): every layer's rectangles (active tiles grown by the blur's footprint), weighted by
+        what blurring and compositing them costs (:func:`layer_rects`). Cheap next to a render;
+        :mod:`.cost` turns it into seconds.
+
+        disparity: (H, W) float32, DESIGN units. focus: focus disparity. aperture: scale >= 0.
+        """
+        if aperture == 0:
+            return int(disparity.size)
+        s = signed_radius(disparity.astype(np.float32, copy=False), np.float32(focus), np.float32(aperture))
+        s = np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0)
+        plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
+        j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
+        u = np.clip(s / np.float32(plan.step), j_lo, j_hi).astype(np.float32)
+        active = self._active_layers(u, j_lo, j_hi)
+        _, cost_ns = self._plan_tasks(plan, active, u.shape)
+        return max(int(round(cost_ns / WORK_NS_PER_PX)), 1)
+
     # -- internals ------------------------------------------------------------------------
-    def _map_ordered(self, fn, items: list, ahead: int = 4):
+    def _plan_tasks(self, plan: LayerPlan, active: np.ndarray,
+                    shape: tuple[int, int]) -> tuple[list[BlurTask], float]:
+        """The blur tasks of a frame, front to back, and their modelled cost (ns).
+
+        active: (L, ty, tx) tiles per layer (:meth:`_active_layers`)."""
+        h, w = shape
+        j_lo = int(plan.indices.min())
+        zones = (zone_edges(h, self.spec.zones), zone_edges(w, self.spec.zones)) if self.spec.varies else None
+        tasks: list[BlurTask] = []
+        total = 0.0
+        for j in plan.indices[::-1]:  # front to back (model step 4)
+            j = int(j)
+            tiles = active[j - j_lo]
+            if not tiles.any():
+                continue
+            radius = abs(float(j) * plan.step)
+            kernel = self._kernel(radius)
+            side = kernel.shape[0]
+            factor = self._reduction(radius) if zones is None and side > 1 else 1
+            small = self._kernel(radius / factor) if factor > 1 else None
+            if small is not None and small.size > 1:
+                kernel, half = small, (small.shape[0] // 2 + 1) * factor  # + 1: the bilinear upsampling's support
+                box_ns = BOX_NS + UPSAMPLE_NS + blur_ns_per_px(small.shape[0]) / factor ** 2
+            else:
+                factor, half, box_ns = 1, side // 2, BOX_NS + blur_ns_per_px(side)
+                if zones is not None and side > 1:
+                    kernel = ZoneKernels(*zones, [[self._kernel(radius, (zy, zx)) for zx in range(self.spec.zones)]
+                                                  for zy in range(self.spec.zones)])
+            rects, cost = layer_rects(tiles, self.tile, half, shape, box_ns, CORE_NS, align=factor)
+            total += cost
+            tasks.extend(BlurTask(j, box, core, kernel, factor) for box, core in rects)
+        return tasks, total
+
+    def _map_ordered(self, fn, items: list, ahead: int = 6):
         """Yield fn(item) in order, computing up to ``ahead`` items on worker threads."""
         if self.threads <= 1 or len(items) < 2:
             yield from map(fn, items)
@@ -206,9 +302,7 @@ class FastRenderer:
             yield result
 
     def _reduction(self, radius: float) -> int:
-        """Resolution divisor (1 or 2) a layer of blur ``radius`` px is blurred at: 2 from
-        ``half_res_radius`` on (a quarter resolution for the largest radii was measured too: 39 dB
-        against the exact model and no faster, so it is not used)."""
+        """Resolution divisor (1 or 2) a layer of blur ``radius`` px is blurred at."""
         return 2 if self.half_res_radius is not None and radius >= self.half_res_radius else 1
 
     def _kernel(self, radius: float, zone: tuple[int, int] | None = None) -> np.ndarray:
@@ -238,30 +332,6 @@ class FastRenderer:
             self._tiles[key] = got
         return got
 
-    def work_px(self, disparity: np.ndarray, focus: float, aperture: float) -> int:
-        """How much work a frame is: the pixels of every layer's boxes (active tiles grown by the
-        blur's footprint) that :meth:`render_linear` blurs and composites, summed over the layers.
-        Cheap next to a render; :mod:`.cost` turns it into seconds.
-
-        disparity: (H, W) float32, DESIGN units. focus: focus disparity. aperture: scale >= 0.
-        """
-        if aperture == 0:
-            return int(disparity.size)
-        s = signed_radius(disparity.astype(np.float32, copy=False), np.float32(focus), np.float32(aperture))
-        s = np.nan_to_num(s, nan=0.0, posinf=0.0, neginf=0.0)
-        plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
-        j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
-        u = np.clip(s / np.float32(plan.step), j_lo, j_hi).astype(np.float32)
-        active = self._active_layers(u, j_lo, j_hi)
-        total = 0
-        for j in plan.indices:
-            tiles = active[int(j) - j_lo]
-            if tiles.any():
-                half = int(np.ceil(abs(float(j) * plan.step))) + 1
-                for (y0, y1, x0, x1), _ in layer_boxes(tiles, self.tile, half, u.shape):
-                    total += (y1 - y0) * (x1 - x0)
-        return int(total)
-
     def _active_layers(self, u: np.ndarray, j_lo: int, j_hi: int) -> np.ndarray:
         """(L, ty, tx) bool: layer j_lo + l has a non-zero matte somewhere in the tile.
 
@@ -280,83 +350,193 @@ class FastRenderer:
         return active.T.reshape(n_layers, ty, tx)
 
 
-def layer_boxes(tiles: np.ndarray, tile: int, half: int, shape: tuple[int, int]) -> list[tuple[Box, Box]]:
-    """Disjoint (box, core) pixel rectangles for one layer, clipped to ``shape`` (H, W).
+BAND_TILES = ((1, 4, 16, 1 << 30), (4, 16))
+"""Band heights (tiles) :func:`layer_rects` tries along rows and along columns (``1 << 30``: one
+band, the whole layer). More choices found layouts only a few % cheaper (bench scene and real depth)
+for twice the planning time."""
 
-    ``core`` bounds the active tiles of a group; ``box`` is the core grown by ``half`` px,
-    so it holds every source pixel of the group and its whole blurred footprint. Boxes of
-    different groups never overlap (overlapping groups are merged).
+
+def layer_rects(tiles: np.ndarray, tile: int, half: int, shape: tuple[int, int], box_ns: float,
+                core_ns: float = CORE_NS, align: int = 1) -> tuple[list[tuple[Box, Box]], float]:
+    """(box, core) pixel rectangles covering one layer's active tiles, and their modelled cost (ns).
+
+    ``core`` bounds a group of active tiles (every source pixel of the layer lies in exactly one
+    core); ``box`` is the core grown by ``half`` px and clipped to ``shape`` (H, W), so it holds the
+    group's whole blurred footprint (boxes may overlap). ``align``: the box's edges fall on
+    multiples of it (the grid of a reduced blur; ``half`` is a multiple of it). The layer is cut
+    into bands of a few tile rows (or columns) and each band into runs of active tiles, runs closer
+    than the footprint merged; the band height and direction of least modelled cost win:
+    ``RECT_NS`` a rectangle + ``core_ns`` a core pixel + ``box_ns`` a box pixel.
     """
     h, w = shape
-    grow = -(-half // tile)
-    mask = tiles.astype(np.uint8)
-    if grow:
-        mask = cv2.dilate(mask, np.ones((2 * grow + 1, 2 * grow + 1), np.uint8))
-    n, labels = cv2.connectedComponents(mask, connectivity=8)
-    cores: list[list[int]] = []
-    for c in range(1, n):
-        ys, xs = np.nonzero((labels == c) & tiles)
-        if ys.size:
-            cores.append([int(ys.min()) * tile, min((int(ys.max()) + 1) * tile, h),
-                          int(xs.min()) * tile, min((int(xs.max()) + 1) * tile, w)])
-    # merge groups whose grown boxes overlap, until all boxes are disjoint
-    merged = True
-    while merged and len(cores) > 1:
-        merged = False
-        for a in range(len(cores)):
-            for b in range(a + 1, len(cores)):
-                p, q = cores[a], cores[b]
-                if (p[0] - half < q[1] + half and q[0] - half < p[1] + half
-                        and p[2] - half < q[3] + half and q[2] - half < p[3] + half):
-                    cores[a] = [min(p[0], q[0]), max(p[1], q[1]), min(p[2], q[2]), max(p[3], q[3])]
-                    del cores[b]
-                    merged = True
-                    break
-            if merged:
-                break
-    return [((max(c[0] - half, 0), min(c[1] + half, h), max(c[2] - half, 0), min(c[3] + half, w)),
-             (c[0], c[1], c[2], c[3])) for c in cores]
+    gap = max(int(2 * half // tile), 0)
+    best = None
+    for transposed, heights in zip((False, True), BAND_TILES):
+        t = tiles.T if transposed else tiles
+        n = t.shape[0]
+        tried = set()
+        for b in heights:
+            b = min(b, n)
+            if b in tried:
+                continue
+            tried.add(b)
+            r0, r1, c0, c1 = _band_runs(t, b, gap)
+            if transposed:
+                r0, r1, c0, c1 = c0, c1, r0, r1
+            rects = _rect_pixels(r0, r1, c0, c1, tile, half, h, w, align)
+            cy0, cy1, cx0, cx1, y0, y1, x0, x1 = rects
+            cost = (RECT_NS * len(cy0) + core_ns * float(((cy1 - cy0) * (cx1 - cx0)).sum())
+                    + box_ns * float(((y1 - y0) * (x1 - x0)).sum()))
+            if best is None or cost < best[0]:
+                best = (cost, rects)
+    cost, (cy0, cy1, cx0, cx1, y0, y1, x0, x1) = best
+    out = [((int(a), int(b), int(c), int(d)), (int(e), int(f), int(g), int(k)))
+           for a, b, c, d, e, f, g, k in zip(y0, y1, x0, x1, cy0, cy1, cx0, cx1)]
+    return out, cost
 
 
-def blur_layer_box(
-    radiance1: np.ndarray,
-    u: np.ndarray,
-    inv_norm: np.ndarray,
-    j: float,
-    kernel: np.ndarray,
-    box: Box,
-    core: Box,
-    reduced: tuple[int, np.ndarray] | None = None,
-) -> np.ndarray:
-    """Blurred premultiplied [R, G, B, W] (h, w, 4) of layer j over ``box`` (model step 3).
+def _band_runs(t: np.ndarray, b: int, gap: int) -> tuple[np.ndarray, ...]:
+    """Tile rectangles [r0, r1) x [c0, c1) of ``t`` (n, m) bool cut into bands of ``b`` rows, each
+    band into runs of active columns (runs at most ``gap`` tiles apart merged); rows shrunk to the
+    run's active ones."""
+    n, m = t.shape
+    nb = -(-n // b)
+    if nb * b != n:
+        t = np.concatenate([t, np.zeros((nb * b - n, m), bool)])
+    t3 = t.reshape(nb, b, m)
+    col = t3.any(axis=1)
+    edge = np.zeros((nb, 1), np.int8)
+    d = np.diff(np.concatenate([edge, col.view(np.int8), edge], axis=1), axis=1)
+    band, c0 = np.nonzero(d == 1)
+    c1 = np.nonzero(d == -1)[1]
+    if band.size > 1 and gap > 0:
+        join = (band[1:] == band[:-1]) & (c0[1:] - c1[:-1] <= gap)
+        if join.any():
+            first = np.concatenate([[True], ~join])
+            last = np.concatenate([~join, [True]])
+            band, c0, c1 = band[first], c0[first], c1[last]
+    if b == 1:
+        return band, band + 1, c0, c1
+    prefix = np.zeros((nb, b, m + 1), np.int32)
+    np.cumsum(t3, axis=2, out=prefix[:, :, 1:])
+    rows = (prefix[band, :, c1] - prefix[band, :, c0]) > 0  # (runs, b): the run's active rows
+    r0 = band * b + rows.argmax(axis=1)
+    r1 = band * b + b - rows[:, ::-1].argmax(axis=1)
+    return r0, r1, c0, c1
 
-    radiance1: (H, W, 4) float32 [R, G, B, 1] linear radiance with a channel of ones.
-    The matte is the normalised ``M_j`` (``inv_norm``: the reciprocal matte normaliser).
-    Sources are the pixels of ``core`` (the matte is zero elsewhere in the box); ``kernel`` is
-    already flipped for correlation; zero outside the frame. ``reduced``: (factor, the flipped
-    kernel of radius / factor) to blur at 1 / factor of the resolution instead (an area average
-    down, bilinear back up; :data:`HALF_RES_RADIUS`).
+
+def _rect_pixels(r0, r1, c0, c1, tile: int, half: int, h: int, w: int, align: int):
+    """Tile rectangles -> pixel cores and boxes (the cores grown by ``half``, clipped, box edges on
+    multiples of ``align``): eight int arrays cy0, cy1, cx0, cx1, y0, y1, x0, x1."""
+    cy0, cy1 = r0 * tile, np.minimum(r1 * tile, h)
+    cx0, cx1 = c0 * tile, np.minimum(c1 * tile, w)
+    y0, x0 = np.maximum((cy0 - half) // align * align, 0), np.maximum((cx0 - half) // align * align, 0)
+    y1 = np.minimum(-(-(cy1 + half) // align) * align, h)
+    x1 = np.minimum(-(-(cx1 + half) // align) * align, w)
+    return cy0, cy1, cx0, cx1, y0, y1, x0, x1
+
+
+def blur_task(planes: list, u: np.ndarray, inv_norm: np.ndarray, task: BlurTask,
+              spectra: "SpectrumCache | None" = None) -> list:
+    """The four blurred planes [R, G, B, W] (each (box h, box w) float32) of one task (model
+    step 3): the radiance planes times the layer's matte, and the matte itself (the coverage).
+
+    planes: the frame's (H, W) float32 radiance planes. The matte is the normalised ``M_j``
+    (``inv_norm``: the reciprocal matte normaliser); sources are the pixels of the core (the task's
+    other rectangles hold the rest); the kernel is already flipped for correlation; zero outside the
+    frame. A reduced task (``factor`` > 1) is area-averaged onto the frame's grid of factor x factor
+    cells, blurred with the kernel of radius / factor and upsampled bilinearly.
     """
-    y0, y1, x0, x1 = box
-    cy0, cy1, cx0, cx1 = core
-    alpha = cv2.multiply(_matte_cv(u[cy0:cy1, cx0:cx1], j), inv_norm[cy0:cy1, cx0:cx1])
-    core_src = cv2.multiply(radiance1[cy0:cy1, cx0:cx1], cv2.merge((alpha, alpha, alpha, alpha)))
-    if isinstance(kernel, ZoneKernels):
-        return _blur_by_zones(core_src, kernel, box, core)
-    if reduced is not None and reduced[1].size > 1:
-        # pad to multiples of the factor so the area average and the bilinear upsampling share one grid
-        f, small_kernel = reduced
-        bh, bw = y1 - y0, x1 - x0
-        src = cv2.copyMakeBorder(core_src, cy0 - y0, y1 - cy1 + (-bh) % f, cx0 - x0, x1 - cx1 + (-bw) % f,
-                                 cv2.BORDER_CONSTANT, value=0)
-        small = cv2.resize(src, (src.shape[1] // f, src.shape[0] // f), interpolation=cv2.INTER_AREA)
-        small = cv2.filter2D(small, -1, small_kernel, borderType=cv2.BORDER_CONSTANT)
-        up = cv2.resize(small, (src.shape[1], src.shape[0]), interpolation=cv2.INTER_LINEAR)
-        return np.ascontiguousarray(up[:bh, :bw])
-    src = cv2.copyMakeBorder(core_src, cy0 - y0, y1 - cy1, cx0 - x0, x1 - cx1, cv2.BORDER_CONSTANT, value=0)
-    if kernel.size > 1:
-        src = cv2.filter2D(src, -1, kernel, borderType=cv2.BORDER_CONSTANT)
-    return src
+    y0, y1, x0, x1 = task.box
+    cy0, cy1, cx0, cx1 = task.core
+    alpha = cv2.multiply(_matte_cv(u[cy0:cy1, cx0:cx1], float(task.j)), inv_norm[cy0:cy1, cx0:cx1])
+    cores = [cv2.multiply(p[cy0:cy1, cx0:cx1], alpha) for p in planes] + [alpha]
+    if isinstance(task.kernel, ZoneKernels):
+        return cv2.split(_blur_by_zones(cv2.merge(cores), task.kernel, task.box, task.core))
+    f = task.factor
+    out = []
+    if f > 1:
+        gy0, gy1, gx0, gx1 = cy0 // f, -(-cy1 // f), cx0 // f, -(-cx1 // f)  # the core's cells
+        ly0, ly1, lx0, lx1 = y0 // f, -(-y1 // f), x0 // f, -(-x1 // f)  # the box's cells
+        aligned = (cy0, cx0, cy1, cx1) == (gy0 * f, gx0 * f, gy1 * f, gx1 * f)
+        for c in cores:
+            if not aligned:
+                buf = np.zeros(((gy1 - gy0) * f, (gx1 - gx0) * f), np.float32)
+                buf[cy0 - gy0 * f:cy1 - gy0 * f, cx0 - gx0 * f:cx1 - gx0 * f] = c
+                c = buf
+            small = cv2.resize(c, (gx1 - gx0, gy1 - gy0), interpolation=cv2.INTER_AREA)
+            small = cv2.copyMakeBorder(small, gy0 - ly0, ly1 - gy1, gx0 - lx0, lx1 - gx1, cv2.BORDER_CONSTANT,
+                                       value=0)
+            small = blur_planes(small, task.kernel, spectra)
+            up = cv2.resize(small, ((lx1 - lx0) * f, (ly1 - ly0) * f), interpolation=cv2.INTER_LINEAR)
+            out.append(up[:y1 - y0, :x1 - x0])
+        return out
+    for c in cores:
+        full = np.zeros((y1 - y0, x1 - x0), np.float32)
+        full[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] = c
+        out.append(blur_planes(full, task.kernel, spectra))
+    return out
+
+
+DFT_FROM_SIDE = 15
+"""Kernels of at least this side are applied by a DFT of the box (:class:`SpectrumCache`), smaller
+ones by ``cv2.filter2D`` directly (measured: a DFT costs 6-10 ns a pixel and channel with the
+kernel's spectrum cached, about half of filter2D's own DFT, which recomputes it; the direct filter
+costs ~0.04 k^2 ns)."""
+
+
+class SpectrumCache:
+    """Kernel spectra (OpenCV's packed real DFT) by (kernel, DFT height, DFT width), up to
+    ``max_bytes``; shared by the worker threads (a race only computes a spectrum twice)."""
+
+    def __init__(self, max_bytes: int = 256 << 20) -> None:
+        self.max_bytes = max_bytes
+        self._spectra: dict = {}
+        self._bytes = 0
+
+    def get(self, kernel: np.ndarray, hh: int, ww: int) -> np.ndarray:
+        """The spectrum of the (unflipped) PSF of ``kernel`` (flipped, odd square) centred at
+        (0, 0) of an (hh, ww) periodic frame."""
+        key = (id(kernel), hh, ww)
+        got = self._spectra.get(key)
+        if got is None:
+            half = kernel.shape[0] // 2
+            psf = kernel[::-1, ::-1]
+            padded = np.zeros((hh, ww), np.float32)
+            padded[:half + 1, :half + 1] = psf[half:, half:]
+            padded[:half + 1, ww - half:] = psf[half:, :half]
+            padded[hh - half:, :half + 1] = psf[:half, half:]
+            padded[hh - half:, ww - half:] = psf[:half, :half]
+            got = cv2.dft(padded)
+            if self._bytes + got.nbytes > self.max_bytes:
+                self._spectra.clear()
+                self._bytes = 0
+            self._spectra[key] = got
+            self._bytes += got.nbytes
+        return got
+
+
+def blur_planes(img: np.ndarray, kernel: np.ndarray, spectra: SpectrumCache | None = None) -> np.ndarray:
+    """``cv2.filter2D(img, -1, kernel, borderType=BORDER_CONSTANT)``: (h, w) or (h, w, C) float32;
+    ``kernel`` flipped. Large kernels by a periodic DFT blur over (h + half, w + half) at least (so
+    nothing wraps around into the box)."""
+    side = kernel.shape[0]
+    if side <= 1:
+        return img
+    if spectra is None or side < DFT_FROM_SIDE or min(img.shape[:2]) <= side:
+        return cv2.filter2D(img, -1, kernel, borderType=cv2.BORDER_CONSTANT)
+    h, w = img.shape[:2]
+    half = side // 2
+    hh, ww = cv2.getOptimalDFTSize(h + half), cv2.getOptimalDFTSize(w + half)
+    spectrum = spectra.get(kernel, hh, ww)
+    planes = [img] if img.ndim == 2 else cv2.split(img)
+    out = []
+    for p in planes:
+        if hh != h or ww != w:
+            p = cv2.copyMakeBorder(p, 0, hh - h, 0, ww - w, cv2.BORDER_CONSTANT, value=0)
+        spec = cv2.mulSpectrums(cv2.dft(p, nonzeroRows=h), spectrum, 0)
+        out.append(cv2.idft(spec, flags=cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT, nonzeroRows=h)[:h, :w])
+    return out[0] if img.ndim == 2 else cv2.merge(out)
 
 
 @dataclass(frozen=True)

@@ -65,7 +65,7 @@ def test_the_cost_estimate_grows_with_pixels_and_layers():
 
 
 def test_an_expensive_render_warns_before_the_first_frame(tmp_path, caplog, monkeypatch):
-    """640x360 with busy depth and blur radii up to 200 px (401 layers) is over the limit; the
+    """640x360 with busy depth and blur radii up to 300 px (601 layers) is over the limit; the
     renderer itself is stubbed: only the warning is under test."""
     w, h = 640, 360
     clip = tmp_path / "clip"
@@ -74,15 +74,15 @@ def test_an_expensive_render_warns_before_the_first_frame(tmp_path, caplog, monk
         cv2.imwrite(str(clip / f"f{i}.png"), np.full((h, w, 3), 100 + i, np.uint8))
     depth = tmp_path / "d.npy"
     yy, xx = np.mgrid[0:h, 0:w]
-    np.save(depth, (np.sin(xx / 7.0) * np.cos(yy / 5.0) * 100).astype(np.float32))
+    np.save(depth, (np.sin(xx / 7.0) * np.cos(yy / 5.0) * 150).astype(np.float32))
     job = RenderJob(RenderSettings(input=clip, depth=depth, outputs=[tmp_path / "frames"], focus=0.0, aperture=2.0))
     monkeypatch.setattr(job.renderer, "render_linear", lambda radiance, disparity, focus, aperture: radiance)
-    assert frame_cost_s(w, h, 200, work_px=FastRenderer().work_px(np.load(depth), 0.0, 2.0)) > WARN_S_PER_FRAME
+    assert frame_cost_s(w, h, 300, work_px=FastRenderer().work_px(np.load(depth), 0.0, 2.0)) > WARN_S_PER_FRAME
     with caplog.at_level(logging.WARNING, logger="rvr_addon.pipeline"):
         assert job.step()
     warned = [r.getMessage() for r in caplog.records if "s a frame" in r.getMessage()]
     assert len(warned) == 1, caplog.text
-    assert "640x360" in warned[0] and "200 px" in warned[0] and "--scale 0.5" in warned[0]
+    assert "640x360" in warned[0] and "300 px" in warned[0] and "--scale 0.5" in warned[0]
     caplog.clear()
     job.cancel()
     cheap = RenderJob(RenderSettings(input=clip, depth=depth, outputs=[tmp_path / "f2"], focus=0.0, aperture=0.05))
