@@ -146,6 +146,9 @@ SNR_RANGE = (2.0, 4.0)
 """A frame's signal to noise (spread of its log inverse depth, robust std from the 10-90 %
 range, over the disagreement of independent measurements of it) under which the cue trusts nothing / from which it keeps its
 confidence."""
+CLIP_SNR_MIN_FRAMES = 3
+"""Frames with a signal to noise the clip's gate (the median SNR so far
+through SNR_RANGE, :func:`clip_gate`) waits for before it gates anything."""
 SPIKE_RATIO = 4.0
 """A pair's inverse depth above this many times the 95th percentile of its trusted values is
 dropped (a near object covering under 5 % of the frame, or a flow error)."""
@@ -637,6 +640,7 @@ class _Run:
         self.focal_refined = False
         self.unstable = 0  # pairs of the current output frame dropped for too much rotation
         self.ratios: list[float] = []  # parallax / rotation flow of the current frame's pairs
+        self.snrs: list[float] = []  # every output frame's signal to noise so far (the clip's gate)
 
     # ---------------------------------------------------------------- per input frame
 
@@ -977,6 +981,13 @@ class _Run:
                 info["propagated"] = True
         t.q, t.conf, t.epoch, t.cc = q_chain, c_chain, self.epoch, c_cue
         self._keep_track_depth(t)
+        if cur is not None and info.get("snr") is not None:
+            self.snrs.append(float(info["snr"]))
+        gate = clip_gate(self.snrs)
+        info["clip_snr"] = round(float(np.median(self.snrs)), 3) if self.snrs else None
+        if gate < 1.0:
+            c_cue = (c_cue * np.float32(gate)).astype(np.float32)
+            info["clip_gate"] = round(gate, 3)
         q_full, c_full = upsample(q_chain, c_cue, t.full_size)
         return CueMap(NAME, q_full, c_full, metric=False, shift_free=True, info=info)
 
@@ -1102,6 +1113,18 @@ class _Run:
                 "track_spread": round(max(spreads.values()), 4) if spreads else None,
                 "snr": None if snr is None else round(snr, 3), "rotation_ratio": self.ratios}
         return (q_out, c_out, f_snr, info), "parallax", best
+
+
+def clip_gate(snrs: list[float]) -> float:
+    """0..1: how far a clip's parallax is trusted at all, from the median signal to noise of its
+    frames so far (``snrs``; through SNR_RANGE; 1 until CLIP_SNR_MIN_FRAMES frames have one). A
+    frame's own SNR misses errors its pairs share (a rolling shutter under fast rotation, a wrong
+    focal length): where most frames of the clip are noise, the few that look clean are not
+    trusted either. Gates what the cue hands to the fusion, not the scale chain or the memory."""
+    if len(snrs) < CLIP_SNR_MIN_FRAMES:
+        return 1.0
+    med = float(np.median(snrs))
+    return float(np.clip((med - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0.0, 1.0))
 
 
 def _merge(q_a: np.ndarray, c_a: np.ndarray, q_b: np.ndarray, c_b: np.ndarray, k_a: np.ndarray,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rvr_addon.depth.cues import CueMap, focal_px
-from rvr_addon.depth.parallax import ParallaxEstimator, default_K, triangulate, upsample
+from rvr_addon.depth.parallax import SNR_RANGE, ParallaxEstimator, clip_gate, default_K, triangulate, upsample
 from rvr_addon.estimate.evaluate import affine_invariant_error
 
 W, H = 320, 240
@@ -299,3 +299,13 @@ def test_without_memory_a_frame_without_pairs_is_empty(monkeypatch):
                         lambda self, buf, c, poses: (None, "forced", 0.0) if buf[c].index == 5 else own(self, buf, c, poses))
     maps = list(ParallaxEstimator(window=4).maps(iter(frames)))
     assert _empty(maps[5]) and maps[5].info["reason"] == "forced"
+
+
+def test_the_clip_gate_distrusts_a_clip_whose_frames_are_mostly_noise():
+    """The median SNR of the clip's frames so far decides: a few clean-looking frames in a clip
+    of noise (TUM fr1/rpy: median 1.8) hand the fusion nothing; a clean clip keeps everything."""
+    lo, hi = SNR_RANGE
+    assert clip_gate([]) == 1.0 and clip_gate([0.5, 0.5]) == 1.0  # too few frames to judge
+    assert clip_gate([1.5, 1.8, 2.9, 1.7]) == 0.0
+    assert clip_gate([7.0, 5.8, 10.3]) == 1.0
+    assert clip_gate([lo, (lo + hi) / 2, hi]) == pytest.approx(0.5)
