@@ -80,6 +80,10 @@ CACHE_FORMAT = "rvr-laaf-cache/1"
 FRAME_NAME = "frame_{:05d}.exr"
 _FRAME_RE = re.compile(r"frame_(\d{5,})\.exr$")
 CHANNELS = ("D", "E.R", "E.G", "E.B")
+EXR_COMPRESSION = "rle"
+"""Compression of the cache's frame files: RLE (lossless; writes about 3x and reads 1.4x faster
+than ZIP for 15 % more disk; at 1080p ZIP's encoding was a fifth of the whole pipeline).
+Files of either compression are read alike, so caches written with ZIP stay valid."""
 STABILIZED_CHANNELS = ("S.D", "S.E.R", "S.E.G", "S.E.B", "S.C")
 MIB = 1 << 20
 KEY_FIELDS = ("format", "engine_version", "model_hash", "source_hash", "resolution", "depth")
@@ -434,20 +438,30 @@ class ClipCache:
     # -- frames ---------------------------------------------------------------------------
     def is_valid(self, index: int, size: tuple[int, int]) -> bool:
         """True if frame ``index`` (0-based) is recorded, intact and readable at size (w, h)."""
+        return self._checked_channels(index, size) is not None
+
+    def read_valid(self, index: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(D, E) of frame ``index`` as :meth:`read` gives them when :meth:`is_valid` holds, else
+        None: one read of the file instead of two."""
+        ch = self._checked_channels(index, size)
+        return None if ch is None else (ch["D"], np.dstack([ch["E.R"], ch["E.G"], ch["E.B"]]))
+
+    def _checked_channels(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
+        """Every channel of frame ``index``'s EXR if it is recorded, intact and at size (w, h), else None."""
         path = frame_path(self.folder, index)
         recorded = self.frames.get(str(index + 1))
         pending = (self.stabilized or {}).get("pending", {}).get(str(index + 1))
         if recorded is None or not path.is_file() or path.stat().st_size not in (recorded, pending):
-            return False
+            return None
         try:
             channels = read_exr(path)
         except InputError:
-            return False
+            return None
         for name in CHANNELS:
             arr = channels.get(name)
             if arr is None or arr.shape != (size[1], size[0]) or not np.isfinite(arr).all():
-                return False
-        return True
+                return None
+        return channels
 
     def read(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(D (H, W), E (H, W, 3)) float32 of a cached frame (check :meth:`is_valid` first)."""
@@ -458,7 +472,7 @@ class ClipCache:
         """Store frame ``index``: disparity (H, W) px, exponent (H, W, 3); atomic, then recorded."""
         path = frame_path(self.folder, index)
         write_exr(path, {"D": disparity, "E.R": exponent[..., 0], "E.G": exponent[..., 1],
-                         "E.B": exponent[..., 2]})
+                         "E.B": exponent[..., 2]}, compression=EXR_COMPRESSION)
         self.frames[str(index + 1)] = path.stat().st_size
         if self.stabilized is not None:
             log.info("cache '%s': frame %d re-estimated; the stabilized channels are outdated (run rvr stabilize "
@@ -569,7 +583,7 @@ class ClipCache:
                          "S.E.B": exponent[..., 2], "S.C": confidence})
         tmp = temp_sibling(path, ".exr")
         try:
-            write_exr(tmp, channels)
+            write_exr(tmp, channels, compression=EXR_COMPRESSION)
             size = tmp.stat().st_size
             self.stabilized["pending"][str(index + 1)] = size
             self.flush()

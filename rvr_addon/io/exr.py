@@ -82,16 +82,27 @@ def _check_channels(path: Path, channels: dict[str, np.ndarray], half: bool) -> 
     return prepared
 
 
-def write_exr(path: str | Path, channels: dict[str, np.ndarray], half: bool = False) -> None:
-    """Write (H, W) channels to one single-part, ZIP-compressed scanline EXR, atomically.
+COMPRESSIONS = ("zip", "rle")
+"""Lossless compressions :func:`write_exr` offers: "zip" (smallest; the default for files a user
+keeps) and "rle" (about 3x faster to write and 1.4x to read, 15 % larger on disparity and
+exponent maps; the per-clip cache uses it, see :data:`rvr_addon.estimate.cache.EXR_COMPRESSION`)."""
+
+
+def write_exr(path: str | Path, channels: dict[str, np.ndarray], half: bool = False,
+              compression: str = "zip") -> None:
+    """Write (H, W) channels to one single-part, losslessly compressed scanline EXR, atomically.
 
     half=True stores 16-bit half floats (smaller; about 3 significant digits), else 32-bit float.
+    compression: one of :data:`COMPRESSIONS`.
     The folder is created if needed. Raises OutputError naming the file on failure; an existing
     file at `path` is replaced only once the new one is completely written.
     """
     import OpenEXR
 
     path = Path(path)
+    if compression not in COMPRESSIONS:
+        raise ValueError(f"write_exr: compression {compression!r} is not one of {', '.join(COMPRESSIONS)}")
+    codec = {"zip": OpenEXR.ZIP_COMPRESSION, "rle": OpenEXR.RLE_COMPRESSION}[compression]
     prepared = _check_channels(path, channels, half)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -99,7 +110,7 @@ def write_exr(path: str | Path, channels: dict[str, np.ndarray], half: bool = Fa
         raise OutputError(f"Cannot create the folder for EXR '{path}': {ex}. Choose a writable location.") from ex
     tmp_name = str(temp_sibling(path, ".tmp.exr"))
     try:
-        header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+        header = {"compression": codec, "type": OpenEXR.scanlineimage}
         with OpenEXR.File(header, prepared) as exr:
             exr.write(tmp_name)
         os.replace(tmp_name, path)

@@ -141,11 +141,12 @@ class StabilizeJob:
     def _raw(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         from ..estimate.cache import frame_path
 
-        if not self.cache.is_valid(index, self.resolution):
+        raw = self.cache.read_valid(index, self.resolution)
+        if raw is None:
             raise InputError(f"frame {index} of the cache ('{frame_path(self.cache.folder, index)}') is missing, "
                              "truncated or corrupt; run `rvr estimate` with the same settings again to recompute it, "
                              "then `rvr stabilize` again")
-        return self.cache.read(index)
+        return raw
 
     def step(self) -> bool:
         """Stream the next frame through the filter and store what it returns; False at the end."""

@@ -203,6 +203,27 @@ def test_clip_cache_rejects_a_file_path(tmp_path):
                       "depth": 1})
 
 
+def test_cache_frames_are_rle_lossless_and_read_valid_reads_once(tmp_path):
+    import OpenEXR
+
+    key = {"format": "rvr-laaf-cache/1", "engine_version": "t", "model_hash": "m", "source_hash": "s",
+           "resolution": [5, 4], "depth": "network"}
+    cache = ClipCache(tmp_path / "c", key)
+    rng = np.random.default_rng(1)
+    d, e = rng.random((4, 5)).astype(np.float32), rng.normal(size=(4, 5, 3)).astype(np.float32)
+    cache.write(0, d, e)
+    cache.flush()
+    assert OpenEXR.File(str(frame_path(cache.folder, 0))).header()["compression"] == OpenEXR.RLE_COMPRESSION
+    got = cache.read_valid(0, (5, 4))
+    np.testing.assert_array_equal(got[0], d)
+    np.testing.assert_array_equal(got[1], e)
+    assert cache.is_valid(0, (5, 4)) and cache.read_valid(0, (4, 5)) is None  # wrong size
+    assert cache.read_valid(1, (5, 4)) is None  # not recorded
+    path = frame_path(cache.folder, 0)
+    path.write_bytes(path.read_bytes()[:60])  # truncated: the recorded size no longer matches
+    assert cache.read_valid(0, (5, 4)) is None and not cache.is_valid(0, (5, 4))
+
+
 def test_tiny_frames_through_the_job(tmp_path, weights):
     folder = tmp_path / "tiny"
     folder.mkdir()

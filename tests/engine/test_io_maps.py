@@ -33,6 +33,20 @@ def test_exr_round_trip_float32_exact(tmp_path):
         np.testing.assert_array_equal(back[name], array)
 
 
+def test_exr_rle_is_lossless_and_unknown_compression_is_refused(tmp_path):
+    import OpenEXR
+
+    channels = {"D": ramp(), "E.R": np.random.default_rng(0).normal(size=(H, W)).astype(np.float32)}
+    write_exr(tmp_path / "r.exr", dict(channels), compression="rle")
+    assert OpenEXR.File(str(tmp_path / "r.exr")).header()["compression"] == OpenEXR.RLE_COMPRESSION
+    back = read_exr(tmp_path / "r.exr")
+    for name, array in channels.items():
+        np.testing.assert_array_equal(back[name], array)
+    with pytest.raises(ValueError, match="compression 'lzw'"):
+        write_exr(tmp_path / "x.exr", channels, compression="lzw")
+    assert not (tmp_path / "x.exr").exists()
+
+
 def test_exr_half_round_trip(tmp_path):
     write_exr(tmp_path / "h.exr", {"Y": ramp()}, half=True)
     back = read_exr(tmp_path / "h.exr")["Y"]
