@@ -263,6 +263,11 @@ def frame_path(folder: Path, index: int) -> Path:
     return folder / FRAME_NAME.format(index + 1)
 
 
+def split_channels(channels: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(D (H, W) px, E (H, W, 3)) of a cache frame's channels (the raw ones, :data:`CHANNELS`)."""
+    return channels["D"], np.dstack([channels["E.R"], channels["E.G"], channels["E.B"]])
+
+
 class ClipCache:
     """Read/write access to one cache folder under one key (see the module docstring).
 
@@ -440,11 +445,10 @@ class ClipCache:
         """True if frame ``index`` (0-based) is recorded, intact and readable at size (w, h)."""
         return self._checked_channels(index, size) is not None
 
-    def read_valid(self, index: int, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
-        """(D, E) of frame ``index`` as :meth:`read` gives them when :meth:`is_valid` holds, else
-        None: one read of the file instead of two."""
-        ch = self._checked_channels(index, size)
-        return None if ch is None else (ch["D"], np.dstack([ch["E.R"], ch["E.G"], ch["E.B"]]))
+    def read_valid(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
+        """Every channel of frame ``index``'s EXR ({name: (H, W) float32}) when :meth:`is_valid`
+        holds, else None: one read of the file instead of two (:func:`split_channels` gives D, E)."""
+        return self._checked_channels(index, size)
 
     def _checked_channels(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
         """Every channel of frame ``index``'s EXR if it is recorded, intact and at size (w, h), else None."""
@@ -465,8 +469,7 @@ class ClipCache:
 
     def read(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """(D (H, W), E (H, W, 3)) float32 of a cached frame (check :meth:`is_valid` first)."""
-        ch = read_exr(frame_path(self.folder, index))
-        return ch["D"], np.dstack([ch["E.R"], ch["E.G"], ch["E.B"]])
+        return split_channels(read_exr(frame_path(self.folder, index)))
 
     def write(self, index: int, disparity: np.ndarray, exponent: np.ndarray) -> None:
         """Store frame ``index``: disparity (H, W) px, exponent (H, W, 3); atomic, then recorded."""
@@ -569,16 +572,18 @@ class ClipCache:
             frame_path(self.folder, index).is_file() and frame_path(self.folder, index).stat().st_size == size
 
     def write_stabilized(self, index: int, disparity: np.ndarray, exponent: np.ndarray,
-                         confidence: np.ndarray) -> None:
+                         confidence: np.ndarray, existing: dict[str, np.ndarray] | None = None) -> None:
         """Add S.D, S.E.R/G/B, S.C to frame ``index``'s EXR, keeping its raw channels.
 
-        disparity (H, W) px, exponent (H, W, 3), confidence (H, W) in [0, 1]. Atomic, in two
+        disparity (H, W) px, exponent (H, W, 3), confidence (H, W) in [0, 1]. existing: the
+        file's channels as :meth:`read_valid` gave them (None: read again). Atomic, in two
         steps (see the module docstring); call :meth:`begin_stabilized` first.
         """
         if self.stabilized is None:
             raise RuntimeError("write_stabilized before begin_stabilized")
         path = frame_path(self.folder, index)
-        channels = dict(read_exr(path))  # every channel already there is kept (raw D, E and any other)
+        # every channel already there is kept (raw D, E and any other)
+        channels = dict(read_exr(path) if existing is None else existing)
         channels.update({"S.D": disparity, "S.E.R": exponent[..., 0], "S.E.G": exponent[..., 1],
                          "S.E.B": exponent[..., 2], "S.C": confidence})
         tmp = temp_sibling(path, ".exr")

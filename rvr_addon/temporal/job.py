@@ -119,6 +119,7 @@ class StabilizeJob:
         self.text = f"stabilizing {len(self.todo)} of {len(indices)} frames of {self.source.name}"
         self._stream: Iterator[tuple[int, np.ndarray]] | None = None
         self._filter: TemporalFilter | None = None
+        self._held: dict[int, dict[str, np.ndarray]] = {}  # channels read, until their frame is written
         self._finished = not self.plan
         if self._finished:
             self.cache.commit()
@@ -139,14 +140,16 @@ class StabilizeJob:
             yield -1, np.empty(0)  # end of a segment
 
     def _raw(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        from ..estimate.cache import frame_path
+        from ..estimate.cache import frame_path, split_channels
 
         raw = self.cache.read_valid(index, self.resolution)
         if raw is None:
             raise InputError(f"frame {index} of the cache ('{frame_path(self.cache.folder, index)}') is missing, "
                              "truncated or corrupt; run `rvr estimate` with the same settings again to recompute it, "
                              "then `rvr stabilize` again")
-        return raw
+        if index in self.todo:  # written back with its stabilized channels (no second read)
+            self._held[index] = raw
+        return split_channels(raw)
 
     def step(self) -> bool:
         """Stream the next frame through the filter and store what it returns; False at the end."""
@@ -168,7 +171,7 @@ class StabilizeJob:
             self.done += 1
         for t, d_s, e_s, conf in outputs:
             if t in self.todo:
-                self.cache.write_stabilized(t, d_s, e_s, conf)
+                self.cache.write_stabilized(t, d_s, e_s, conf, existing=self._held.pop(t, None))
                 self.todo.discard(t)
                 self.written += 1
         return True

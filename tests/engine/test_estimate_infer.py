@@ -15,7 +15,7 @@ import torch
 
 from rvr_addon.cli import main
 from rvr_addon.errors import InputError
-from rvr_addon.estimate.cache import ClipCache, frame_path
+from rvr_addon.estimate.cache import ClipCache, frame_path, split_channels
 from rvr_addon.estimate.infer import (
     EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, sample_window,
 )
@@ -214,7 +214,7 @@ def test_cache_frames_are_rle_lossless_and_read_valid_reads_once(tmp_path):
     cache.write(0, d, e)
     cache.flush()
     assert OpenEXR.File(str(frame_path(cache.folder, 0))).header()["compression"] == OpenEXR.RLE_COMPRESSION
-    got = cache.read_valid(0, (5, 4))
+    got = split_channels(cache.read_valid(0, (5, 4)))
     np.testing.assert_array_equal(got[0], d)
     np.testing.assert_array_equal(got[1], e)
     assert cache.is_valid(0, (5, 4)) and cache.read_valid(0, (4, 5)) is None  # wrong size
