@@ -179,6 +179,7 @@ class StabilizeJob:
     def _close(self) -> None:
         if self._stream is not None:
             self._stream.close()
+        self._held.clear()
         self.cache.flush()
         if not self.todo:
             self.cache.commit()  # a fork beside the cache (other settings) replaces it only now
