@@ -443,15 +443,12 @@ class ClipCache:
     # -- frames ---------------------------------------------------------------------------
     def is_valid(self, index: int, size: tuple[int, int]) -> bool:
         """True if frame ``index`` (0-based) is recorded, intact and readable at size (w, h)."""
-        return self._checked_channels(index, size) is not None
+        return self.read_valid(index, size) is not None
 
     def read_valid(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
-        """Every channel of frame ``index``'s EXR ({name: (H, W) float32}) when :meth:`is_valid`
-        holds, else None: one read of the file instead of two (:func:`split_channels` gives D, E)."""
-        return self._checked_channels(index, size)
-
-    def _checked_channels(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
-        """Every channel of frame ``index``'s EXR if it is recorded, intact and at size (w, h), else None."""
+        """Every channel of frame ``index``'s EXR ({name: (H, W) float32}) if it is recorded, intact
+        and at size (w, h), else None: checking and reading in one read (:func:`split_channels`
+        gives D, E)."""
         path = frame_path(self.folder, index)
         recorded = self.frames.get(str(index + 1))
         pending = (self.stabilized or {}).get("pending", {}).get(str(index + 1))
