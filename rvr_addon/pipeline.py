@@ -16,7 +16,7 @@ import numpy as np
 
 from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
 from .errors import InputError
-from .io.maps import open_map_sequence
+from .io.maps import open_map_sequence, share_exr_reads
 from .io.paths import check_outputs, replace_folder
 from .io.track import FocusTrack, constant_track, load_track, resolve_track, warn_keys_beyond
 from .io.video import ClipInfo, iter_frames, probe_clip
@@ -226,8 +226,11 @@ class RenderJob:
                              f"{s.input} needs {stop}: supply one map per frame (or a single map)")
         self.depth.warn_extra(self.clip.frame_count, s.input)
         self.hdr = open_map_sequence(s.hdr, kind="hdr") if s.hdr is not None else None
+        self._shared_reads = None
         if self.hdr is not None:
             self.hdr.warn_extra(self.clip.frame_count, s.input)
+            if not self.depth.static and self.depth.stack is None and self.hdr.paths == self.depth.paths:
+                self._shared_reads = share_exr_reads(self.depth, self.hdr)  # one cache: each frame file read once
         self.track: FocusTrack | None = s.track_data
         if self.track is None and s.track is not None:
             self.track = load_track(s.track)
@@ -363,6 +366,8 @@ class RenderJob:
                 w.write(srgb8)
 
     def _stop_decoder(self) -> None:
+        if self._shared_reads is not None:
+            self._shared_reads.clear()
         decoder, self._decoder = self._decoder, None
         if decoder is not None:
             decoder.close()

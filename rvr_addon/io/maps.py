@@ -42,10 +42,62 @@ def _find_channel(channels: dict[str, np.ndarray], name: str) -> np.ndarray | No
     return None
 
 
-def _exr_map(path: Path, kind: str, prefix: str = "") -> np.ndarray:
+class SharedExrReads:
+    """The channels of the EXR file read last, for sequences whose maps live in the same files
+    (a cache's D and E channels share one file per frame): each file is decoded once, not once
+    per sequence. The first read of a file keeps its channels; the next read of the same,
+    unchanged file (same inode, mtime and size) takes them and forgets them, so at most one
+    file's channels are held; the first reader gets copies (:func:`_exr_map`), so no two
+    callers share an array."""
+
+    def __init__(self) -> None:
+        self._key: tuple | None = None
+        self._channels: dict[str, np.ndarray] | None = None
+        self.decoded = 0
+        """Files decoded so far (a reader's own count, for tests and benchmarks)."""
+
+    def read(self, path: Path) -> tuple[dict[str, np.ndarray], bool]:
+        """({name: (H, W) float32}, True when the channels were kept from an earlier read)."""
+        from .exr import read_exr
+
+        st = path.stat()
+        key = (str(path), st.st_ino, st.st_mtime_ns, st.st_size)
+        if key == self._key and self._channels is not None:
+            channels, self._key, self._channels = self._channels, None, None
+            return channels, True
+        self._key, self._channels = None, None
+        channels = read_exr(path)
+        self.decoded += 1
+        self._key, self._channels = key, channels
+        return channels, False
+
+    def clear(self) -> None:
+        """Drop the kept channels (a job closing)."""
+        self._key, self._channels = None, None
+
+
+def share_exr_reads(*sequences: "MapSequence | None") -> SharedExrReads:
+    """Let ``sequences`` (e.g. the depth and HDR maps of one cache) decode each EXR file once."""
+    shared = SharedExrReads()
+    for seq in sequences:
+        if seq is not None:
+            seq.shared = shared
+    return shared
+
+
+def _exr_map(path: Path, kind: str, prefix: str = "", shared: SharedExrReads | None = None) -> np.ndarray:
     from .exr import read_exr
 
-    channels = read_exr(path)
+    if shared is None:
+        return _pick_exr_channels(path, read_exr(path), kind, prefix)
+    channels, kept = shared.read(path)
+    array = _pick_exr_channels(path, channels, kind, prefix)
+    # the first reader gets its own copy of a kept channel, the last (kept) reader the array itself
+    return array if kept or array.ndim == 3 else array.copy()
+
+
+def _pick_exr_channels(path: Path, channels: dict[str, np.ndarray], kind: str, prefix: str) -> np.ndarray:
+    """The ``kind`` map among an EXR file's channels (a stack of E.R/G/B is a new array)."""
     if prefix:  # a cache's stabilized channels (S.D, S.E.R/G/B): exact names, no fallback
         names = (prefix + "D",) if kind == "disparity" else tuple(prefix + c for c in ("E.R", "E.G", "E.B"))
         if all(n in channels for n in names):
@@ -126,12 +178,13 @@ def _numpy_map(path: Path, kind: str, array: np.ndarray | None = None) -> np.nda
     return array.astype(np.float32)
 
 
-def _read_raw(path: Path, kind: str, prefix: str = "", layer: np.ndarray | None = None) -> np.ndarray:
+def _read_raw(path: Path, kind: str, prefix: str = "", layer: np.ndarray | None = None,
+              shared: SharedExrReads | None = None) -> np.ndarray:
     suffix = path.suffix.lower()
     if layer is not None:  # one map of an (N, H, W) stack
         array = _numpy_map(path, kind, layer)
     elif suffix == ".exr":
-        array = _exr_map(path, kind, prefix)
+        array = _exr_map(path, kind, prefix, shared)
     elif suffix in (".npy", ".npz"):
         array = _numpy_map(path, kind)
     else:
@@ -204,6 +257,8 @@ class MapSequence:
         self._warned_size = False
         self._warned_nonfinite = False
         self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
+        self.shared: SharedExrReads | None = None
+        """EXR reads shared with another sequence of the same files (:func:`share_exr_reads`)."""
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -279,7 +334,7 @@ class MapSequence:
             raise InputError(f"cache frame '{path}' is truncated or incomplete ({st.st_size} bytes; meta.json records "
                              f"{expected[0][0]}); run `{fix}` again to recompute it")
         try:
-            return _read_raw(path, self.kind, self.prefix)
+            return _read_raw(path, self.kind, self.prefix, shared=self.shared)
         except InputError as ex:
             raise InputError(f"{ex} It belongs to the cache '{folder}': run `{fix}` again to recompute it.") from ex
 
@@ -291,7 +346,7 @@ class MapSequence:
         elif self.stack is not None:
             array = _read_raw(path, self.kind, layer=np.asarray(self.stack[index]))
         else:
-            array = _read_raw(path, self.kind, self.prefix)
+            array = _read_raw(path, self.kind, self.prefix, shared=self.shared)
         finite = np.isfinite(array)
         if not finite.all():
             if not finite.reshape(array.shape[0], array.shape[1], -1).any(axis=(0, 1)).all():

@@ -268,3 +268,33 @@ def test_corrupt_map_file_names_file(tmp_path):
 def test_unknown_kind():
     with pytest.raises(InputError, match="kind"):
         open_map_sequence("x.exr", kind="normals")
+
+
+def test_shared_reads_decode_each_file_once_and_share_no_array(tmp_path):
+    """The depth and HDR maps of one folder (a cache's D and E live in one file per frame):
+    with share_exr_reads each file is decoded once, values are those of separate reads, and
+    changing a returned array in place changes nothing read later."""
+    from rvr_addon.io.maps import share_exr_reads
+
+    folder = tmp_path / "maps"
+    for i in range(3):
+        write_exr(folder / f"f_{i:04d}.exr", {"D": ramp(i), "E.R": ramp(10 + i), "E.G": ramp(20 + i),
+                                              "E.B": ramp(30 + i)})
+    depth, hdr = open_map_sequence(folder), open_map_sequence(folder, kind="hdr")
+    shared = share_exr_reads(depth, hdr)
+    for i in range(3):
+        d = depth.get(i)
+        d += 100.0  # the caller's own array
+        e = hdr.get(i)
+        np.testing.assert_array_equal(e[:, :, 2], ramp(30 + i))
+        np.testing.assert_array_equal(depth.get(i), ramp(i))  # kept channels were handed over once: read again
+        e2 = hdr.get(i)  # the depth read kept them: the HDR map comes from memory, equal to a file read
+        np.testing.assert_array_equal(e2, open_map_sequence(folder, kind="hdr").get(i))
+    assert shared.decoded == 6  # 3 frames x (one read shared by D and E, one by the second D and E)
+    # a rewritten file is read again, not taken from memory
+    depth.get(0)
+    write_exr(folder / "f_0000.exr", {"D": ramp(5), "E.R": ramp(5), "E.G": ramp(5), "E.B": ramp(5)})
+    os.utime(folder / "f_0000.exr", ns=(1, 1))
+    np.testing.assert_array_equal(hdr.get(0)[:, :, 0], ramp(5))
+    shared.clear()
+    np.testing.assert_array_equal(hdr.get(0)[:, :, 0], ramp(5))

@@ -199,3 +199,27 @@ def test_an_edited_focus_file_renders_again_without_autofocus(clip, reference, t
     assert json.loads((tmp_path / "e.focus.json").read_text())["per_frame"]["focus"] == [5.0] * N
     assert not np.array_equal(frames_of(out), frames_of(reference / "r.mp4"))
     assert main(["refocus", str(clip), "-o", str(out), "--track", str(tmp_path / "none.json"), *FAST]) == 2
+
+
+def test_the_render_decodes_each_cache_frame_once(clip, reference, tmp_path, monkeypatch):
+    """The cache's D and E live in one EXR per frame: the render reads each of them once
+    (the first frame twice: the job opens on it), not once for D and once for E."""
+    from collections import Counter
+
+    import rvr_addon.io.exr as exr
+
+    reads: Counter = Counter()
+    real = exr.read_exr
+
+    def counting(path):
+        reads[Path(path).name] += 1
+        return real(path)
+
+    monkeypatch.setattr(exr, "read_exr", counting)
+    out = tmp_path / "again.mp4"
+    assert main(["refocus", str(clip), "-o", str(out), "--track", str(reference / "r.focus.json"), "--cache",
+                 str(next((reference / "rvr_cache").iterdir())), *FAST]) == 0
+    frames = sorted(n for n in reads if n.startswith("frame_"))
+    assert len(frames) == N
+    assert sum(reads[n] for n in frames) <= N + 1, reads
+    np.testing.assert_array_equal(frames_of(out), frames_of(reference / "r.mp4"))
