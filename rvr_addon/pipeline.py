@@ -14,7 +14,7 @@ from typing import Iterator, Sequence
 
 import numpy as np
 
-from .color import linear_to_srgb, srgb_to_linear, to_float01, to_uint8
+from .color import image_to_linear, linear_to_srgb, to_uint8
 from .errors import InputError
 from .io.maps import open_map_sequence, share_exr_reads
 from .io.paths import check_outputs, replace_folder
@@ -85,7 +85,7 @@ def exponent_from_radiance(image_srgb: np.ndarray, radiance: np.ndarray, clip_le
     Only pixels clipped in the 8-bit image (linear >= clip_level) get E != 0: below the clip,
     the 8-bit value is the truth up to quantisation. Used for ground-truth HDR inputs.
     """
-    lin = srgb_to_linear(to_float01(image_srgb))
+    lin = image_to_linear(image_srgb)
     ratio = np.maximum(radiance, 1e-6) / np.maximum(lin, 1e-6)
     e = np.log(np.maximum(ratio, 1.0)) / K_HDR
     return np.where(lin >= clip_level, e, 0.0).astype(np.float32)
@@ -342,7 +342,7 @@ class RenderJob:
             exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=native)
             if exponent.ndim == 2:
                 exponent = exponent[..., None]
-        radiance = hdr_radiance(srgb_to_linear(to_float01(frame)), exponent)
+        radiance = hdr_radiance(image_to_linear(frame), exponent)
         disparity = self.depth.get(t if len(self.depth) > 1 else 0, size=native)
         sc = self.settings.scale
         if sc != 1.0:  # a proxy: resample in linear light, as a smaller sensor would see it

@@ -417,10 +417,10 @@ def evaluate(settings: EvalSettings, progress: bool = False) -> dict[str, float]
                 corr.append(row["corr"])
                 scales.append(fs)
                 if fr.radiance is not None:
-                    from ..color import srgb_to_linear, to_float01
+                    from ..color import image_to_linear
 
                     sat = saturated_mask(fr.image)
-                    lin = srgb_to_linear(to_float01(fr.image)).astype(np.float32)
+                    lin = image_to_linear(fr.image).astype(np.float32)
                     a, n = log_radiance_sq_error(lin * np.exp(50.0 * e), fr.radiance, sat)
                     b, _ = log_radiance_sq_error(lin, fr.radiance, sat)
                     sq_ours, sq_none, n_sat = sq_ours + a, sq_none + b, n_sat + n

@@ -568,7 +568,7 @@ class AperturePair:
 def prepare_pair(inp: np.ndarray, wide: np.ndarray, long_side: int, border: float = 0.03) -> AperturePair:
     """Shrink both, align the wide photo onto the input (ECC homography), match its exposure
     (gain per channel in linear light), and choose the scored box."""
-    from ..color import linear_to_srgb, srgb_to_linear, to_float01
+    from ..color import image_to_linear, linear_to_srgb
     from .align import AlignmentError, ecc_align, inner_rectangle, warp_to_reference
 
     a, b = _shrink(inp, long_side), _shrink(wide, long_side)
@@ -587,7 +587,7 @@ def prepare_pair(inp: np.ndarray, wide: np.ndarray, long_side: int, border: floa
     y0, y1, x0, x1 = inner_rectangle(valid)
     my, mx = int(round(border * h)), int(round(border * w))
     box = (y0 + my, y1 - my, x0 + mx, x1 - mx)
-    la, lb = srgb_to_linear(to_float01(a)), srgb_to_linear(to_float01(b))
+    la, lb = image_to_linear(a), image_to_linear(b)
     sl = (slice(box[0], box[1]), slice(box[2], box[3]))
     gain = la[sl].reshape(-1, 3).mean(0) / np.maximum(lb[sl].reshape(-1, 3).mean(0), 1e-6)
     target = np.clip(linear_to_srgb(np.clip(lb * gain.astype(np.float32), 0, None)), 0, 1).astype(np.float32)
@@ -637,9 +637,9 @@ def fit_gauss(pair: AperturePair) -> tuple[float, float, np.ndarray]:
     import cv2
     from scipy.optimize import minimize_scalar
 
-    from ..color import linear_to_srgb, srgb_to_linear, to_float01
+    from ..color import image_to_linear, linear_to_srgb
 
-    lin = srgb_to_linear(to_float01(pair.image)).astype(np.float32)
+    lin = image_to_linear(pair.image).astype(np.float32)
     y0, y1, x0, x1 = pair.box
     tgt = pair.target[y0:y1, x0:x1]
     cache: dict[float, tuple[float, np.ndarray]] = {}

@@ -221,7 +221,7 @@ class Estimator:
         import cv2
         import torch
 
-        from ..color import linear_to_srgb, srgb_to_linear, to_float01
+        from ..color import image_to_linear, linear_to_srgb, to_float01
         from .unet import disparity_to_px
 
         h, w = frame.shape[:2]
@@ -231,7 +231,7 @@ class Estimator:
         if h * w > self.max_pixels:
             s = (self.max_pixels / (h * w)) ** 0.5
             size = (max(int(w * s), 1), max(int(h * s), 1))
-            shrunk = linear_to_srgb(cv2.resize(srgb_to_linear(srgb), size, interpolation=cv2.INTER_AREA))
+            shrunk = linear_to_srgb(cv2.resize(image_to_linear(frame), size, interpolation=cv2.INTER_AREA))
             small = torch.from_numpy(np.ascontiguousarray(shrunk, dtype=np.float32)).permute(2, 0, 1)[None]
         with torch.inference_mode():
             out = self.model.net(small, guide_srgb=full if small is not full else None)
@@ -243,7 +243,7 @@ class Estimator:
         """:meth:`__call__` with the ONNX trunk and numpy (:mod:`.onnx_infer`), same resampling."""
         import cv2
 
-        from ..color import linear_to_srgb, srgb_to_linear, to_float01
+        from ..color import image_to_linear, linear_to_srgb, to_float01
         from .onnx_infer import DISPARITY_PERCENT
 
         h, w = frame.shape[:2]
@@ -252,7 +252,7 @@ class Estimator:
         if h * w > self.max_pixels:
             s = (self.max_pixels / (h * w)) ** 0.5
             size = (max(int(w * s), 1), max(int(h * s), 1))
-            shrunk = linear_to_srgb(cv2.resize(srgb_to_linear(srgb), size, interpolation=cv2.INTER_AREA))
+            shrunk = linear_to_srgb(cv2.resize(image_to_linear(frame), size, interpolation=cv2.INTER_AREA))
             small, guide = np.ascontiguousarray(shrunk, dtype=np.float32), srgb
         d_rel, e = self.model.net(small, guide)
         d = d_rel * np.float32(w / DISPARITY_PERCENT)

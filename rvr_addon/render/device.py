@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ..color import linear_to_srgb, srgb_to_linear, to_float01
+from ..color import image_to_linear, linear_to_srgb
 from ..errors import InputError
 from . import DEVICES
 from .aperture import ApertureSpec, kernel_half_size, make_kernel
@@ -168,7 +168,7 @@ class TorchRenderer:
     def render_srgb(self, image: np.ndarray, disparity: np.ndarray, focus: float, aperture: float,
                     hdr_exponent: np.ndarray | None = None) -> np.ndarray:
         """Shallow-DOF sRGB (H, W, 3) float32 in [0, 1] from an sRGB frame (as ``FastRenderer.render_srgb``)."""
-        radiance = hdr_radiance(srgb_to_linear(to_float01(image)), hdr_exponent)
+        radiance = hdr_radiance(image_to_linear(image), hdr_exponent)
         return linear_to_srgb(self.render_linear(radiance, disparity, focus, aperture))
 
     def render_tensor(self, radiance: Any, disparity: Any, focus: float, aperture: float,

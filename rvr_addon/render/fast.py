@@ -27,7 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from ..color import linear_to_srgb, srgb_to_linear, to_float01
+from ..color import image_to_linear, linear_to_srgb
 from ..errors import InputError
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
@@ -225,7 +225,7 @@ class FastRenderer:
         image: (H, W, 3) uint8/uint16/float sRGB. hdr_exponent: E (H, W) or (H, W, 3), log
         space, radiance = linear * exp(50 E); None = no HDR recovery.
         """
-        radiance = hdr_radiance(srgb_to_linear(to_float01(image)), hdr_exponent)
+        radiance = hdr_radiance(image_to_linear(image), hdr_exponent)
         return linear_to_srgb(self.render_linear(radiance, disparity, focus, aperture))
 
     def work_px(self, disparity: np.ndarray, focus: float, aperture: float) -> int:

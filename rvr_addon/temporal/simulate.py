@@ -27,7 +27,7 @@ from typing import Iterator
 import cv2
 import numpy as np
 
-from ..color import srgb_to_linear, to_float01
+from ..color import image_to_linear
 
 
 @dataclass
@@ -45,7 +45,7 @@ class SynthFrame:
 
     def radiance(self) -> np.ndarray:
         """(H, W, 3) float32 linear HDR radiance: ``srgb_to_linear(image) * exp(50 E)``."""
-        return (srgb_to_linear(to_float01(self.image)) * np.exp(50.0 * self.exponent)).astype(np.float32)
+        return (image_to_linear(self.image) * np.exp(50.0 * self.exponent)).astype(np.float32)
 
 
 def _noise_texture(rng: np.random.Generator, h: int, w: int, channels: int, scales: tuple[int, ...]) -> np.ndarray:

@@ -13,7 +13,7 @@ from rvr_addon.errors import InputError, VideoOpenError
 from rvr_addon.io.video import iter_frames
 from rvr_addon.pipeline import RenderJob, RenderSettings, exponent_from_radiance
 from rvr_addon.render.fast import FastRenderer
-from rvr_addon.color import srgb_to_linear, linear_to_srgb, to_float01
+from rvr_addon.color import image_to_linear, srgb_to_linear, linear_to_srgb, to_float01
 
 CLIP_W, CLIP_H, CLIP_FRAMES = 64, 48, 12  # the size of tests/conftest.py's clips
 
@@ -222,3 +222,16 @@ def test_frame_list_renders_one_output_frame_per_entry(clip_av, frames_dir, dept
         RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[out], frames=[3, 2]))
     with pytest.raises(InputError, match="has 12 frames"):
         RenderJob(RenderSettings(input=frames_dir, depth=depth_dir, outputs=[out], frames=[0, CLIP_FRAMES]))
+
+
+@pytest.mark.parametrize("shape", [(5, 7), (5, 7, 3), (5, 7, 4), (2, 5, 7, 3), (1, 1, 3)])
+def test_image_to_linear_by_table_equals_the_formula_bit_for_bit(shape):
+    img = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    img.flat[:2] = (0, 255)
+    got = image_to_linear(img)
+    assert got.dtype == np.float32 and got.shape == img.shape
+    np.testing.assert_array_equal(got, srgb_to_linear(to_float01(img)))
+    u16 = (img.astype(np.uint16) * 257)
+    np.testing.assert_array_equal(image_to_linear(u16), srgb_to_linear(to_float01(u16)))
+    f = to_float01(img)
+    np.testing.assert_array_equal(image_to_linear(f), srgb_to_linear(f))
