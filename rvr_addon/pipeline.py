@@ -18,6 +18,7 @@ from .color import image_to_linear, linear_to_srgb, to_uint8
 from .errors import InputError
 from .io.maps import open_map_sequence, share_exr_reads
 from .io.paths import check_outputs, replace_folder
+from .io.readahead import ReadAhead
 from .io.track import FocusTrack, constant_track, load_track, resolve_track, warn_keys_beyond
 from .io.video import ClipInfo, iter_frames, probe_clip
 from .io.writer import ImageSequenceWriter, VideoWriter
@@ -227,6 +228,7 @@ class RenderJob:
         self.depth.warn_extra(self.clip.frame_count, s.input)
         self.hdr = open_map_sequence(s.hdr, kind="hdr") if s.hdr is not None else None
         self._shared_reads = None
+        self._maps: ReadAhead = ReadAhead(self._read_maps)
         if self.hdr is not None:
             self.hdr.warn_extra(self.clip.frame_count, s.input)
             if not self.depth.static and self.depth.stack is None and self.hdr.paths == self.depth.paths:
@@ -334,16 +336,26 @@ class RenderJob:
             self.abort()
             raise
 
-    def _render(self, frame: np.ndarray, k: int) -> np.ndarray:
-        native = (frame.shape[1], frame.shape[0])
-        t = self.start + k if self.frame_list is None else int(self.frame_list[k])
+    def _clip_frame(self, k: int) -> int:
+        """Clip frame index of the k-th frame rendered."""
+        return self.start + k if self.frame_list is None else int(self.frame_list[k])
+
+    def _read_maps(self, key: tuple[int, tuple[int, int]]) -> tuple[np.ndarray | None, np.ndarray]:
+        """(HDR exponent (H, W, C) or None, disparity (H, W)) of clip frame t at size (w, h)."""
+        t, native = key
         exponent = None
         if self.hdr is not None:
             exponent = self.hdr.get(t if len(self.hdr) > 1 else 0, size=native)
             if exponent.ndim == 2:
                 exponent = exponent[..., None]
+        return exponent, self.depth.get(t if len(self.depth) > 1 else 0, size=native)
+
+    def _render(self, frame: np.ndarray, k: int) -> np.ndarray:
+        native = (frame.shape[1], frame.shape[0])
+        t = self._clip_frame(k)
+        then = (self._clip_frame(k + 1), native) if k + 1 < self.total else None
+        exponent, disparity = self._maps.get((t, native), then)  # the next frame's are read meanwhile
         radiance = hdr_radiance(image_to_linear(frame), exponent)
-        disparity = self.depth.get(t if len(self.depth) > 1 else 0, size=native)
         sc = self.settings.scale
         if sc != 1.0:  # a proxy: resample in linear light, as a smaller sensor would see it
             import cv2
@@ -365,7 +377,9 @@ class RenderJob:
                     srgb8 = to_uint8(linear_to_srgb(linear))
                 w.write(srgb8)
 
-    def _stop_decoder(self) -> None:
+    def _stop_inputs(self) -> None:
+        """End the map read-ahead, drop kept channels, end the decoder's ffmpeg."""
+        self._maps.close()
         if self._shared_reads is not None:
             self._shared_reads.clear()
         decoder, self._decoder = self._decoder, None
@@ -373,7 +387,7 @@ class RenderJob:
             decoder.close()
 
     def _close(self) -> None:
-        self._stop_decoder()
+        self._stop_inputs()
         for w in self._writers:
             w.close()
         self._writers = []
@@ -384,7 +398,7 @@ class RenderJob:
         """Stop and remove partial outputs (the writers end their ffmpeg and delete their temp
         files); earlier results at the output paths survive."""
         try:
-            self._stop_decoder()
+            self._stop_inputs()
         except Exception:  # noqa: BLE001 - the writers must still be cleaned up
             log.exception("closing the decoder of %s failed", self.settings.input)
         for w in self._writers:

@@ -30,6 +30,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InputError
+from ..io.readahead import ReadAhead
 from .filter import TemporalFilter, TemporalSettings
 
 log = logging.getLogger(__name__)
@@ -120,6 +121,8 @@ class StabilizeJob:
         self._stream: Iterator[tuple[int, np.ndarray]] | None = None
         self._filter: TemporalFilter | None = None
         self._held: dict[int, dict[str, np.ndarray]] = {}  # channels read, until their frame is written
+        self._streamed = {i for a, b in self.plan for i in range(a, b)}
+        self._reads = ReadAhead(self._read_valid)  # the next frame's file is read while this one is filtered
         self._finished = not self.plan
         if self._finished:
             self.cache.commit()
@@ -139,10 +142,13 @@ class StabilizeJob:
                 yield a + k, frame
             yield -1, np.empty(0)  # end of a segment
 
+    def _read_valid(self, index: int) -> dict[str, np.ndarray] | None:
+        return self.cache.read_valid(index, self.resolution)
+
     def _raw(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         from ..estimate.cache import frame_path, split_channels
 
-        raw = self.cache.read_valid(index, self.resolution)
+        raw = self._reads.get(index, index + 1 if index + 1 in self._streamed else None)
         if raw is None:
             raise InputError(f"frame {index} of the cache ('{frame_path(self.cache.folder, index)}') is missing, "
                              "truncated or corrupt; run `rvr estimate` with the same settings again to recompute it, "
@@ -179,6 +185,7 @@ class StabilizeJob:
     def _close(self) -> None:
         if self._stream is not None:
             self._stream.close()
+        self._reads.close()
         self._held.clear()
         self.cache.flush()
         if not self.todo:

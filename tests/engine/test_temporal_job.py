@@ -144,6 +144,7 @@ def test_render_reads_stabilized_channels_only_when_complete(made, caplog):
                                                  "resolution", "depth")})
     est.write(3, clip[3].disparity, clip[3].exponent)
     est.flush()
+    est.close()
     assert "stabilized" not in json.loads((cache / "meta.json").read_text())
     assert open_map_sequence(cache, "disparity").prefix == ""
 
