@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.paths import temp_sibling
+from ..io.readahead import ReadAhead
 from ..io.video import ClipInfo, probe_clip
 from .combine import FALLBACKS, PRESETS
 from .presets import AUTO
@@ -80,18 +81,33 @@ class ClipSetup:
     depth: DisparitySource
     scale: float
     size: tuple[int, int]
+    reads: "ReadAhead | None" = None  # the next frame's disparity, read in the background
+
+    def _disparity(self, k: int) -> np.ndarray:
+        return self.depth.get(self.start + k, self.size)
+
+    def close(self) -> None:
+        """End the background read of a disparity map (a run ending or cancelled)."""
+        if self.reads is not None:
+            self.reads.close()
 
     @property
     def n(self) -> int:
         return self.stop - self.start
 
-    def frame(self, rgb: np.ndarray, k: int, with_depth: bool = True) -> tuple[AnalysisFrame, dict[str, float]]:
+    def frame(self, rgb: np.ndarray, k: int, with_depth: bool = True,
+              ahead: bool = True) -> tuple[AnalysisFrame, dict[str, float]]:
         """(analysis frame k of the run, seconds spent: decode = shrinking, depth) from a native
-        frame; with_depth False: no disparity (warm-up frames only need the image)."""
+        frame; with_depth False: no disparity (warm-up frames only need the image). ahead: frame
+        k + 1's disparity is read in the background meanwhile (:meth:`close` ends that)."""
         t0 = time.perf_counter()
         small, gray = shrink(rgb, self.size)
         t1 = time.perf_counter()
-        disp = self.depth.get(self.start + k, self.size) if with_depth else None
+        disp = None
+        if with_depth:
+            if self.reads is None:
+                self.reads = ReadAhead(self._disparity)
+            disp = self.reads.get(k, k + 1 if ahead and k + 1 < self.n else None)
         return AnalysisFrame(k, small, gray, disp, self.scale, self.fps, native=rgb), {"decode": t1 - t0,
                                                                            "depth": time.perf_counter() - t1}
 
@@ -266,13 +282,14 @@ def measure_range(s: "AutofocusSettings", a: int, b: int) -> Iterator[FrameMeasu
             if rgb is None:
                 raise InputError(f"{s.input} ended after {k} of {setup.n} frames while measuring frames {a}..{b - 1}")
             check_frame_size(rgb, clip, k, s.input)
-            af, seconds = setup.frame(rgb, k, with_depth=k >= a)
+            af, seconds = setup.frame(rgb, k, with_depth=k >= a, ahead=k + 1 < b)
             features, det_seconds = analyser.measure(af, warm_up=k < a)
             if k >= a:
                 seconds["decode"] += read
                 yield FrameMeasurement(k, af.rgb, af.disparity, features, {**seconds, **det_seconds})
     finally:
         frames.close()
+        setup.close()
 
 
 def check_frame_size(rgb: np.ndarray, clip: ClipInfo, k: int, source) -> None:

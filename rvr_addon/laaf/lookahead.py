@@ -329,6 +329,7 @@ class AutofocusJob:
         return True
 
     def _finish(self) -> None:
+        self.setup.close()
         for det in self.detectors.values():
             det.flush()
         last = self._k - 1
@@ -758,6 +759,7 @@ class AutofocusJob:
         close = getattr(frames, "close", None)
         if close is not None:
             close()
+        self.setup.close()
         if not self._finished:
             self._finished = True
             self.text = f"cancelled after {self._k} of {self.n} frames"
