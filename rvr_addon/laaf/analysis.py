@@ -40,6 +40,7 @@ from ..errors import InputError
 from ..io.paths import temp_sibling
 from ..io.readahead import ReadAhead
 from ..io.video import ClipInfo, probe_clip
+from ..temporal.cuts import CutDetector
 from .combine import FALLBACKS, PRESETS
 from .presets import AUTO
 from .depth import DisparitySource
@@ -226,18 +227,25 @@ class FrameAnalyser:
         self.prev: AnalysisFrame | None = None
         self.faces: list[Box] = []
 
-    def measure(self, frame: AnalysisFrame, warm_up: bool = False) -> tuple[dict[str, object], dict[str, float]]:
+    def measure(self, frame: AnalysisFrame, warm_up: bool = False,
+                cut: bool = False) -> tuple[dict[str, object], dict[str, float]]:
         """(features, seconds per detector) of ``frame``, the frame after the last one measured.
-        warm_up: a frame before a chunk, measured only for what the chunk needs (face boxes)."""
+        warm_up: a frame before a chunk, measured only for what the chunk needs (face boxes).
+        cut: the frame starts a new shot: its faces are detected afresh (the previous shot's
+        boxes are not held over the cut, as ``FaceDetector.cut`` wants) and nothing is measured
+        against the previous frame (a pairwise cue across a cut is the cut itself)."""
         features: dict[str, object] = {}
         seconds: dict[str, float] = {}
-        prev = self.prev if self.prev is not None and self.prev.t == frame.t - 1 else None
+        prev = self.prev if self.prev is not None and self.prev.t == frame.t - 1 and not cut else None
         try:
             for name, det in self.detectors.items():
                 if warm_up and name != "face":
                     continue
                 t0 = time.perf_counter()
-                features[name] = det.measure(frame, prev, self.faces)
+                if cut and name == "face" and hasattr(det, "detect"):
+                    features[name] = det.detect(frame)
+                else:
+                    features[name] = det.measure(frame, prev, self.faces)
                 seconds[name] = time.perf_counter() - t0
                 if name == "face" and features[name] is not None:
                     self.faces = list(features[name])
@@ -273,6 +281,10 @@ def measure_range(s: "AutofocusSettings", a: int, b: int) -> Iterator[FrameMeasu
     names = measured_names(dets, speech=clip.kind == "video" and clip.has_audio)
     analyser = FrameAnalyser(dets, names)
     lo = analysis_start(a, s.face_every if "face" in names else None)
+    # the shot cuts, as the run finds them (AutofocusJob: given, or detected on the analysis frames;
+    # the detector is pairwise, so from lo on it says what the whole run's says)
+    given = {int(c) - setup.start for c in s.cuts} if s.cuts is not None else None
+    cut_detector = CutDetector() if given is None and s.detect_cuts else None
     frames = iter_frames(s.input, start=setup.start + lo, stop=setup.start + b)
     try:
         for k in range(lo, b):
@@ -283,7 +295,9 @@ def measure_range(s: "AutofocusSettings", a: int, b: int) -> Iterator[FrameMeasu
                 raise InputError(f"{s.input} ended after {k} of {setup.n} frames while measuring frames {a}..{b - 1}")
             check_frame_size(rgb, clip, k, s.input)
             af, seconds = setup.frame(rgb, k, with_depth=k >= a, ahead=k + 1 < b)
-            features, det_seconds = analyser.measure(af, warm_up=k < a)
+            cut = k > 0 and (k in given if given is not None else
+                             cut_detector is not None and cut_detector.push(af.rgb))
+            features, det_seconds = analyser.measure(af, warm_up=k < a, cut=cut)
             if k >= a:
                 seconds["decode"] += read
                 yield FrameMeasurement(k, af.rgb, af.disparity, features, {**seconds, **det_seconds})

@@ -257,11 +257,27 @@ class AutofocusJob:
                                  f"{item.rgb.shape[1]}x{item.rgb.shape[0]} px where frame {k} at {self.size[0]}x"
                                  f"{self.size[1]} px was due; measure the chunks with these settings, in order")
             small, gray = shrink(item.rgb, self.size)
-            return AnalysisFrame(k, small, gray, item.disparity, self.scale, self.fps), item.features, item.seconds
+            af = AnalysisFrame(k, small, gray, item.disparity, self.scale, self.fps)
+            self._find_cut(af, k)  # the chunk was measured knowing its cuts (analysis.measure_range)
+            return af, item.features, item.seconds
         check_frame_size(item, self.clip, k, self.settings.input)
         af, seconds = self.setup.frame(item, k)
-        features, det_seconds = self.analyser.measure(af)
+        features, det_seconds = self.analyser.measure(af, cut=self._find_cut(af, k))
         return af, features, {**seconds, **det_seconds}
+
+    def _find_cut(self, af: AnalysisFrame, k: int) -> bool:
+        """True when frame k starts a new shot: a given cut, or one the cut detector finds
+        (recorded in ``cuts``). Run before frame k is measured: a cut frame's faces are
+        detected afresh and no pairwise cue is measured across it."""
+        if self.cut_detector is not None:
+            t0 = time.perf_counter()
+            if self.cut_detector.push(af.rgb) and k > 0:
+                log.info("autofocus: shot cut at frame %d (%.0f%% of the pixels fail the flow checks): tracks and "
+                         "targets restart", k + self.start, 100 * self.cut_detector.fail[-1])
+                self.cuts.append(k)
+                self._cutset.add(k)
+            self._timings["cuts_s"] = self._timings.get("cuts_s", 0.0) + time.perf_counter() - t0
+        return k in self._cutset
 
     def _ingest(self, k: int, af: AnalysisFrame, features: dict[str, object], seconds: dict[str, float]) -> None:
         """Every available detector takes frame k and its measurement, in frame order."""
@@ -305,14 +321,6 @@ class AutofocusJob:
             return False
         k = self._k
         af, features, seconds = self._analyse(item, k)
-        if self.cut_detector is not None:
-            t0 = time.perf_counter()
-            if self.cut_detector.push(af.rgb) and k > 0:
-                log.info("autofocus: shot cut at frame %d (%.0f%% of the pixels fail the flow checks): tracks and "
-                         "targets restart", k + self.start, 100 * self.cut_detector.fail[-1])
-                self.cuts.append(k)
-                self._cutset.add(k)
-            self._timings["cuts_s"] = self._timings.get("cuts_s", 0.0) + time.perf_counter() - t0
         if k in self._cutset:
             for det in self.detectors.values():
                 det.cut(k)
