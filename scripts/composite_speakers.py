@@ -15,9 +15,20 @@ picture); a turn jumps the panel to its speech stretch (a small in-panel jump, l
 Nothing from ../shared/data is copied into the repository: the clip and its annotation are
 written under the folder given at run time.
 
-Usage: python scripts/composite_speakers.py OUT_DIR [--kind grid_restaurant|interview_halves]
+Kind ``shot_reverse_shot`` (cuts, issue 23) is edited instead: full-frame *shots*, one person
+each (GRID's woman, the restaurant's man, the interview's presenter and guest, cropped so that the
+heads alternate left / right like a shot-reverse-shot), joined by hard cuts. Per shot a list of
+*parts* says what its picture plays (a source stretch, or a ping-pong of an idle range) and what
+is heard: the shown person's own voice in sync (a turn), nothing, or another clip's voice (the
+previous shot's person going on over this shot: an L-cut; the next shot's person starting before
+the cut: a J-cut), which is off-screen speech. The annotation adds ``cuts`` (first frame of each
+new shot) and ``shots`` (first frame, the shown person's head box); the depth is one map per
+frame (an (N, H, W) stack at a reduced size): the shown person's head and torso at that person's
+own disparity, the rest at a background level.
+
+Usage: python scripts/composite_speakers.py OUT_DIR [--kind grid_restaurant|interview_halves|shot_reverse_shot]
 (writes OUT_DIR/<kind>.mp4, OUT_DIR/<kind>.json and OUT_DIR/<kind>_depth.npy: a disparity map
-with one level per panel, so only the focus *decision* is judged).
+with one level per panel, or per shot, so only the focus *decision* is judged).
 """
 from __future__ import annotations
 
@@ -90,6 +101,195 @@ KINDS = {
 }
 
 
+@dataclass
+class Person:
+    """One person of an edited kind: clip (under CLIPS), crop (x, y, w, h) in its native px
+    (the shot's frame, resized to the output size), head (x, y, w, h): the head in the clip's
+    native px (the turn box; clipped to the crop), disparity: that person's level."""
+
+    clip: str
+    crop: tuple[int, int, int, int]
+    head: tuple[int, int, int, int]
+    disparity: float
+    name: str
+
+
+@dataclass
+class Part:
+    """A stretch of a shot, ``dur_s`` long. video: the source time it starts at (played
+    forward), a range (a, b) played ping-pong from a towards b, or None (the previous part's
+    clock goes on). voice: None (silence), "own" (the shown person, in sync with the picture:
+    a turn) or (clip, start_s): a voice of another clip, not the shown person's (off-screen)."""
+
+    dur_s: float
+    video: float | tuple[float, float] | None
+    voice: str | tuple[str, float] | None = None
+
+
+@dataclass
+class Shot:
+    """A shot: ``person`` (index into the kind's persons) and its parts; a hard cut before it
+    (except the first)."""
+
+    person: int
+    parts: list[Part]
+
+
+_W = Person("lipnet_grid_lwbsza.mpg", (100, 40, 260, 208), (50, 40, 215, 248), 3.0, "grid woman")
+_M = Person("visualvoice_noisy_restaurant.mp4", (60, 0, 560, 448), (330, 20, 210, 260), 2.0, "restaurant man")
+_P = Person("visualvoice_interview.mp4", (250, 40, 380, 304), (295, 60, 210, 290), 3.6, "presenter")
+_G = Person("visualvoice_interview.mp4", (660, 60, 350, 280), (795, 60, 215, 290), 1.4, "guest")
+_REST = "visualvoice_noisy_restaurant.mp4"
+
+SHOT_KINDS = {
+    # W left / M right / P left / G right; background disparity 0.5, each person at its own level
+    "shot_reverse_shot": dict(
+        size=(400, 320), background=0.5,
+        persons=[_W, _M, _P, _G],
+        shots=[
+            Shot(0, [Part(0.4, 0.26), Part(1.8, 0.66, "own")]),                    # she speaks
+            Shot(1, [Part(2.5, 1.0, "own")]),                                       # cut: he speaks at once
+            # L-cut: his voice goes on over her silent face (she ping-pongs her still first 0.64 s),
+            # then she answers in the same shot
+            Shot(0, [Part(2.56, (0.64, 0.0), (_REST, 3.5)), Part(1.8, 0.66, "own"), Part(0.4, 2.46)]),
+            Shot(2, [Part(0.68, 4.84, "own"), Part(0.64, 5.52), Part(0.76, 6.16, "own")]),  # cut: he speaks
+            Shot(3, [Part(0.44, 6.3)]),                                              # an 11-frame reaction insert:
+            Shot(2, [Part(0.3, 15.9), Part(0.9, 16.2, "own"), Part(0.3, 17.1)]),     # two cuts 0.44 s apart
+            # cut: the guest speaks at once; then a J-cut: the restaurant man's voice starts over the
+            # guest's muted face (his mouth still moves: his own speech, muted) before the cut to him.
+            # (The guest's 14.4-16.2 s are left out: his hand sweeping past the close-up fails the cut
+            # detector's flow checks on 60-72% of the pixels, a false cut.)
+            Shot(3, [Part(2.0, 10.72, "own"), Part(0.48, 12.72), Part(1.1, None, (_REST, 5.0))]),
+            Shot(1, [Part(2.3, 6.1, "own"), Part(0.4, 8.4)]),                      # his voice goes on: he is seen
+        ]),
+}
+
+
+def _box_in_shot(person: Person, size: tuple[int, int]) -> list[int]:
+    """The person's head box in output px of a shot (clipped to the frame)."""
+    cx, cy, cw, ch = person.crop
+    sx, sy = size[0] / cw, size[1] / ch
+    x, y, w, h = person.head
+    x0, y0 = max((x - cx) * sx, 0.0), max((y - cy) * sy, 0.0)
+    x1, y1 = min((x + w - cx) * sx, size[0]), min((y + h - cy) * sy, size[1])
+    return [int(round(x0)), int(round(y0)), int(round(x1 - x0)), int(round(y1 - y0))]
+
+
+def _part_clock(video, prev, dt: float) -> float:
+    """Source time at dt s into a part (``Part.video``; prev: the previous part's clock and its length)."""
+    if video is None:
+        fn, offset = prev
+        return fn(offset + dt)
+    if isinstance(video, tuple):
+        a, b = video
+        span = max(abs(b - a), 1e-3)
+        u = dt % (2 * span)
+        tri = u if u < span else 2 * span - u
+        return a + tri if b >= a else a - tri
+    return float(video) + dt
+
+
+def build_shots(out_dir: str | Path, kind: str = "shot_reverse_shot", clips: Path = CLIPS,
+                depth_size: tuple[int, int] = (100, 80)) -> tuple[Path, Path, Path]:
+    """Write an edited kind (``SHOT_KINDS``): OUT_DIR/<kind>.mp4 (video + sound), OUT_DIR/<kind>.json
+    (fps, turns with the speaker's head box in output px, offscreen segments, cuts: first frame of
+    each new shot, shots: first frame + head box + name) and OUT_DIR/<kind>_depth.npy ((N, h, w)
+    float32 at ``depth_size`` (w, h) px, one map per frame: the shown person's head and torso at the
+    person's disparity, the rest at the background's); returns the three paths."""
+    import imageio_ffmpeg
+
+    from rvr_addon.laaf.audio import decode_audio
+
+    spec = SHOT_KINDS[kind]
+    size = spec["size"]
+    persons: list[Person] = spec["persons"]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    sources = {c: _frames(clips / c) for c in {p.clip for p in persons}}
+    voices = {p.clip for p in persons} | {pt.voice[0] for s in spec["shots"] for pt in s.parts
+                                          if isinstance(pt.voice, tuple)}
+    sound = {c: decode_audio(clips / c, rate=RATE) for c in voices}
+    per_frame = RATE // int(FPS)
+
+    def samples(clip: str, start: float, n_frames: int) -> np.ndarray:
+        a = int(round(start * RATE))
+        seg = sound[clip][a:a + n_frames * per_frame]
+        return np.pad(seg, (0, n_frames * per_frame - len(seg))).astype(np.float32)
+
+    rows: list[tuple[int, int]] = []  # per output frame: (person, source frame)
+    audio: list[np.ndarray] = []
+    turns_json, offscreen, cuts, shots_json = [], [], [], []
+    for si, shot in enumerate(spec["shots"]):
+        person = persons[shot.person]
+        box = _box_in_shot(person, size)
+        first = len(rows)
+        if si:
+            cuts.append(first)
+        shots_json.append({"first": first, "person": person.name, "box": box})
+        prev = None
+        for part in shot.parts:
+            n = int(round(part.dur_s * FPS))
+            f0 = len(rows)
+            clock = [_part_clock(part.video, prev, k / FPS) for k in range(n)]
+            rows += [(shot.person, int(round(t * FPS))) for t in clock]
+            if part.video is None:
+                prev = (prev[0], prev[1] + n / FPS)
+            else:
+                prev = ((lambda v: (lambda dt: _part_clock(v, None, dt)))(part.video), n / FPS)
+            span = {"start_s": round(f0 / FPS, 4), "end_s": round(len(rows) / FPS, 4)}
+            if part.voice is None:
+                audio.append(np.zeros(n * per_frame, np.float32))
+            elif part.voice == "own":
+                if not isinstance(part.video, (int, float)):
+                    raise ValueError(f"shot {si}: an 'own' voice needs a forward-played video start, got {part.video}")
+                audio.append(samples(person.clip, float(part.video), n))
+                turns_json.append({**span, "box": box, "speaker": person.name,
+                                   "source": f"{person.clip} {part.video}-{part.video + n / FPS:.2f} s"})
+            else:
+                clip, t0 = part.voice
+                audio.append(samples(clip, t0, n))
+                offscreen.append({**span, "voice": f"{clip} {t0}-{t0 + n / FPS:.2f} s",
+                                  "over": person.name})
+
+    video = out_dir / f"{kind}.mp4"
+    pcm = (np.clip(np.concatenate(audio), -1, 1) * 32767).astype("<i2")
+    dw, dh = depth_size
+    depth = np.full((len(rows), dh, dw), float(spec["background"]), np.float32)
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "a.wav"
+        with wave.open(str(wav), "wb") as w:
+            w.setnchannels(1)
+            w.setsampwidth(2)
+            w.setframerate(RATE)
+            w.writeframes(pcm.tobytes())
+        writer = imageio_ffmpeg.write_frames(str(video), size, fps=FPS, quality=8, macro_block_size=8,
+                                             audio_path=str(wav), audio_codec="aac", output_params=["-shortest"],
+                                             ffmpeg_log_level="error")
+        writer.send(None)
+        for k, (pi, src) in enumerate(rows):
+            person = persons[pi]
+            frames = sources[person.clip]
+            writer.send(np.ascontiguousarray(_panel_image(frames[min(max(src, 0), len(frames) - 1)], person.crop,
+                                                          size)))
+            # head and torso (the head box widened by a third and down to the bottom of the frame)
+            x, y, w, h = _box_in_shot(person, size)
+            x0, x1 = max(x - w / 6, 0), min(x + w * 7 / 6, size[0])
+            depth[k, int(round(y * dh / size[1])):, int(round(x0 * dw / size[0])):int(round(x1 * dw / size[0]))] = \
+                person.disparity
+        writer.close()
+    ann = {"clip": video.name, "fps": FPS, "turns": turns_json, "offscreen": offscreen, "cuts": cuts,
+           "shots": shots_json,
+           "persons": [{"name": p.name, "clip": p.clip, "disparity": p.disparity} for p in persons],
+           "how": "built by scripts/composite_speakers.py: full-frame shots of one person each, joined by hard cuts; "
+                  "a turn: the shown person's own voice in sync; offscreen: another clip's voice over the shown "
+                  "(silent) person (L-cut / J-cut)"}
+    annotation = out_dir / f"{kind}.json"
+    annotation.write_text(json.dumps(ann, indent=1))
+    depth_path = out_dir / f"{kind}_depth.npy"
+    np.save(depth_path, depth)
+    return video, annotation, depth_path
+
+
 def _frames(clip: Path) -> list[np.ndarray]:
     from rvr_addon.io.video import iter_frames
 
@@ -112,7 +312,9 @@ def _ping_pong(t: float, a: float, b: float) -> float:
 def build(out_dir: str | Path, kind: str = "grid_restaurant", clips: Path = CLIPS) -> tuple[Path, Path, Path]:
     """Write OUT_DIR/<kind>.mp4 (video + the turns' audio), OUT_DIR/<kind>.json (annotation:
     fps, turns with their speaker's panel box in composite px, offscreen segments) and
-    OUT_DIR/<kind>_depth.npy (disparity 1.0 on the left panel, 3.0 on the right); returns them."""
+    OUT_DIR/<kind>_depth.npy (disparity 1.0 on the left panel, 3.0 on the right); returns them. An edited kind (``SHOT_KINDS``) is written by :func:`build_shots`."""
+    if kind in SHOT_KINDS:
+        return build_shots(out_dir, kind, clips)
     import imageio_ffmpeg
 
     from rvr_addon.laaf.audio import decode_audio
@@ -218,7 +420,7 @@ def build(out_dir: str | Path, kind: str = "grid_restaurant", clips: Path = CLIP
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out", type=Path)
-    ap.add_argument("--kind", choices=tuple(KINDS), default="grid_restaurant")
+    ap.add_argument("--kind", choices=tuple(KINDS) + tuple(SHOT_KINDS), default="grid_restaurant")
     args = ap.parse_args(argv)
     for p in build(args.out, args.kind):
         print(p)

@@ -301,7 +301,10 @@ def cmd_eval_focus_real(args: argparse.Namespace) -> int:
                   f"{g(k + '.turns_led')}/{g(k + '.turns_changed')}, lead mean {g(k + '.lead_frames_mean')} frames, "
                   f"spurious {g(k + '.spurious_per_min')}/min, pulls across cuts {g(k + '.pulls_across_cuts')}"
                   + (f", off-screen speech: {g(k + '.offscreen_changes')} changes, moved "
-                     f"{g(k + '.offscreen_moved_share')}" if g(k + ".offscreen_changes") is not None else ""))
+                     f"{g(k + '.offscreen_moved_share')}" if g(k + ".offscreen_changes") is not None else "")
+                  + (f", cuts on the new shot's subject at once {g(k + '.cuts_on_subject')}/"
+                     f"{g(k + '.cuts_annotated')} (largest lag {g(k + '.cut_lag_frames_max')} frames)"
+                     if g(k + ".cuts_on_subject") is not None else ""))
     print(f"wrote {args.output / 'summary.json'}, {args.output / 'details.json'}")
     return 0
 

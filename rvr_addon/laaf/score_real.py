@@ -35,6 +35,17 @@ Figures (:func:`score_focus`):
   speaker), and ``offscreen_moved_share``, the share of their frames whose governing box centre
   is no longer in the region (the annotation's panel boxes, else the turn boxes) it was in at
   the segment's start: focus pulled to a silent face. Absent (None) without such segments.
+  A segment's lead exception does not reach over a cut: no pull may lead across one.
+- Edited clips (annotation key ``shots``: ``[{"first": frame, "box": [x, y, w, h]}]``, the first
+  frame of each shot and the box of the subject it shows; ``cuts`` the first frames after the
+  first shot): ``cut_lag_frames`` per annotated cut, the first frame at or after the cut whose
+  governing box centre lies in the new shot's subject box, minus the cut frame (None: never in
+  that shot); ``cuts_on_subject``: cuts with lag 0 (focus set at once on the new shot's
+  subject); ``cut_lag_frames_max``: the largest lag, a cut never on its subject counting as its
+  shot's length. With ``shots`` the off-screen regions are per shot: a frame is "home" when its
+  governing box centre lies in the box of the shot it belongs to, and ``offscreen_moved_share``
+  counts the frames whose home-ness differs from the segment's first frame. Absent (None)
+  without ``shots``.
 """
 from __future__ import annotations
 
@@ -138,8 +149,17 @@ def score_focus(focus_doc: dict, annotation: dict) -> dict:
     minutes = n / fps / 60.0
 
     regions = [p["box"] for p in ann.get("panels", [])] or [t["box"] for t in turns]
+    shots = sorted(({"first": int(sh["first"]), "box": [float(v) for v in sh["box"]]} for sh in ann.get("shots", [])),
+                   key=lambda sh: sh["first"])
 
-    def region_of(box):
+    def shot_of(k: int) -> dict | None:
+        return next((sh for sh in reversed(shots) if sh["first"] <= k), None)
+
+    def region_of(k: int):
+        box = boxes[k - start]
+        if shots:  # per shot: on the subject of the shot that frame k belongs to, or not
+            sh = shot_of(k)
+            return sh is not None and _inside(box, sh["box"])
         return next((i for i, r in enumerate(regions) if _inside(box, r)), None)
 
     off_changes, off_frames, off_moved = 0, 0, 0
@@ -149,12 +169,26 @@ def score_focus(focus_doc: dict, annotation: dict) -> dict:
             continue
         nxt = [r["start"] for r in per_turn if r["start"] >= a]
         lead_from = (min(nxt) - int(round(fps))) if nxt else b
+        if nxt and any(a < c <= min(nxt) for c in ann_cuts):
+            lead_from = b  # the next turn is in another shot: no pull may lead to it across the cut
         off_changes += sum(1 for k in changes if a < k < min(b, lead_from))
-        home = region_of(boxes[a - start])
+        home = region_of(a)
         for k in range(a, min(b, lead_from)):
             off_frames += 1
-            off_moved += region_of(boxes[k - start]) != home
+            off_moved += region_of(k) != home
     has_off = bool(ann.get("offscreen"))
+
+    cut_lags: list[int | None] = []
+    cut_lag_cost: list[int] = []
+    if shots:
+        for c in ann_cuts:
+            sh = shot_of(c)
+            if sh is None or sh["first"] != c or not start < c < stop:
+                continue
+            end = next((o["first"] for o in shots if o["first"] > c), stop)
+            lag = next((k - c for k in range(c, min(end, stop)) if _inside(boxes[k - start], sh["box"])), None)
+            cut_lags.append(lag)
+            cut_lag_cost.append(lag if lag is not None else min(end, stop) - c)
 
     crossing = 0
     for c in ann_cuts:
@@ -181,11 +215,15 @@ def score_focus(focus_doc: dict, annotation: dict) -> dict:
         "pulls_across_cuts": crossing,
         "offscreen_changes": off_changes if has_off else None,
         "offscreen_moved_share": (round(off_moved / off_frames, 4) if off_frames else 0.0) if has_off else None,
+        "cut_lag_frames": cut_lags if shots else None,
+        "cuts_on_subject": sum(1 for v in cut_lags if v == 0) if shots else None,
+        "cut_lag_frames_max": (max(cut_lag_cost) if cut_lag_cost else 0) if shots else None,
     }
 
 
 FIGURES = ("speaking_share", "turns_led", "turns_changed", "turns_led_landed", "turns_missed", "lead_frames_mean",
-           "spurious_per_min", "pulls_across_cuts", "offscreen_changes", "offscreen_moved_share")
+           "spurious_per_min", "pulls_across_cuts", "offscreen_changes", "offscreen_moved_share", "cuts_annotated",
+           "cuts_on_subject", "cut_lag_frames_max")
 
 
 def evaluate_real(clip: Path, annotation: Path, output: Path, presets, *, cache=None, depth=None, causal_too=False,

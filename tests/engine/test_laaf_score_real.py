@@ -133,3 +133,21 @@ def test_offscreen_figures():
     assert s["offscreen_changes"] == 1
     assert s["offscreen_moved_share"] == round(12 / 20, 4)  # 58-69 on the far box, off the right panel
     assert score_focus(doc, {k: v for k, v in ann.items() if k != "offscreen"})["offscreen_changes"] is None
+
+
+def test_shot_figures():
+    """Edited clips (``shots``): per cut the frames until focus is on the new shot's subject, and
+    off-screen frames judged against the subject of the shot each belongs to; the lead exception
+    of an off-screen segment does not reach over a cut."""
+    doc = synthetic_doc()  # left 0-24, right 25-57, far 58-69, right 70-84, pull left 85-86, left 87-99
+    ann = {"fps": 10.0, "cuts": [58, 87],
+           "shots": [{"first": 0, "box": L}, {"first": 58, "box": R}, {"first": 87, "box": L}],
+           "turns": [{"start_s": 0.0, "end_s": 2.0, "box": L}, {"start_s": 8.0, "end_s": 9.0, "box": L}],
+           "offscreen": [{"start_s": 5.0, "end_s": 7.5}]}
+    s = score_focus(doc, ann)
+    assert s["cut_lag_frames"] == [12, 0]  # the shot from 58 is on its subject (right) from 70; the one from 87 at once
+    assert s["cuts_on_subject"] == 1 and s["cut_lag_frames_max"] == 12
+    # frames 50-74: the turn at 80 is in another shot (cut 58 between): no lead exception; the changes at 58
+    # and 70 count; home (frame 50, on the right while the shot's subject is left): no; 70-74 on the subject
+    assert s["offscreen_changes"] == 2 and s["offscreen_moved_share"] == round(5 / 25, 4)
+    assert score_focus(doc, {k: v for k, v in ann.items() if k != "shots"})["cuts_on_subject"] is None
