@@ -218,3 +218,36 @@ def test_lookahead_focuses_the_new_shots_subject_on_the_cut(tmp_path):
     assert la.focus[CUT] == pytest.approx(2.0, abs=0.2)
     assert [n.t for n in la.nfts if n.t >= CUT] == [CUT]  # no pull after the cut: the cut found the subject
     assert all(not (p.start < CUT < p.end) for p in la.composed.pulls)
+
+
+def test_a_cut_frame_is_measured_in_its_own_faces():
+    """At a cut off a face-detection frame the analyser detects the new shot's faces afresh and
+    measures nothing against the previous shot's frame (the speech detector's mouths were once
+    measured in the previous shot's boxes while the face detector re-detected: a crash)."""
+    from rvr_addon.laaf.analysis import FrameAnalyser
+    from rvr_addon.laaf.detectors.base import AnalysisFrame
+
+    old, new = (20.0, 20.0, 5.0, 5.0), (1.0, 1.0, 5.0, 5.0)
+
+    class Face:
+        measures = True
+
+        def detect(self, frame):
+            return [new] if frame.t >= 10 else [old]
+
+        def measure(self, frame, prev, faces):
+            return self.detect(frame) if frame.t % 6 == 0 else None
+
+    class Speech:
+        measures = True
+
+        def measure(self, frame, prev, faces):
+            return prev is not None, list(faces)
+
+    analyser = FrameAnalyser({"face": Face(), "speech": Speech()}, ["face", "speech"])
+    seen = {}
+    for t in range(14):
+        g = np.zeros((8, 8), np.uint8)
+        features, _ = analyser.measure(AnalysisFrame(t, np.dstack([g] * 3), g, None, 1.0, 25.0), cut=t == 10)
+        seen[t] = features["speech"]
+    assert seen[9] == (True, [old]) and seen[10] == (False, [new]) and seen[11] == (True, [new])
