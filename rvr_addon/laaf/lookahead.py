@@ -20,7 +20,10 @@ by ``analysis.FrameAnalyser`` here, or comes measured already in chunks (``frame
 Shot cuts (issue 23): the shared detector (``temporal.cuts.CutDetector``) runs on every
 analysis frame, or the user gives the cut list (``cuts``; ``detect_cuts`` False: none). At a
 cut every track ends (targets, face tracks: ``FocusDetector.cut``), the new shot's subject
-becomes a target on the cut frame itself (a hard change: ``PullTarget.at_cut``), steps of the
+becomes a target on the cut frame itself (a hard change: ``PullTarget.at_cut``; look-ahead: a
+subject picked up soon after the cut and tracked back to it replaces that target, except a
+region no face holds replacing a target on a face), the cut is found before its frame is
+measured (its faces detected afresh, no pairwise cue across it), steps of the
 focus signal next to a cut are the cut itself and make no NFT, and no pull crosses a cut
 (``puller.schedule_pulls``). Focus that holds: the ``calm`` knob (:mod:`.calm`) raises the
 step threshold, defers a step within the minimum hold of the previous target, takes a step
@@ -509,7 +512,10 @@ class AutofocusJob:
             source = "initial"
         nft = self._nft_from_region(region, t, source, known_at=max(t - 1, 0), subject=None)
         if t > 0:
-            nft = replace(nft, pull_frames=1, lead_frames=0, detail={"cut": True})
+            speech = self.detectors.get("speech")
+            on_face = "face" in region.detectors or (speech is not None and speech.available
+                                                     and "speech" in region.detectors and speech.decide(t)[2] is not None)
+            nft = replace(nft, pull_frames=1, lead_frames=0, detail={"cut": True, "on_face": bool(on_face)})
         self._add_target(nft, region.box, t, ingest, mask=region.mask)
 
     def _source(self, used: tuple[str, ...]) -> str:
@@ -530,7 +536,9 @@ class AutofocusJob:
         """Make the NFT of a step (its region: the first of frames ``search``, default e..e+3,
         whose level is near the step's new level); True if it was made. at_cut: the target of
         the cut that starts the step's shot, replaced by this subject on the cut frame (a hard
-        change there) only if the subject is tracked back to the cut frame; else nothing is made."""
+        change there) only if the subject is tracked back to the cut frame and, where that
+        target is on a face, the subject is on a face too (a speaker's face; not a region only
+        audio-visual synchrony or motion found); else nothing is made."""
         e = step.frame
         region = None
         first, nxt = shot_bounds(e, self.cuts)
@@ -551,6 +559,11 @@ class AutofocusJob:
         speech = self.detectors.get("speech")
         if speech is not None and speech.available and "speech" in region.detectors:
             outputs_tid = speech.decide(e_region)[2]
+        if at_cut is not None and at_cut.nft.detail.get("on_face") and outputs_tid is None \
+                and "face" not in region.detectors:
+            log.debug("step at frame %d: no face holds its region, and the cut at frame %d found a face: the face "
+                      "stays the shot's subject", e, at_cut.nft.t)
+            return False
         nft = self._nft_from_region(region, e, self._source(region.detectors), known_at, outputs_tid)
         nft = NFT(nft.x, nft.y, nft.t, nft.box, nft.source, nft.known_at,
                   confidence=float(min(1.0, abs(step.after - step.before) / (2 * self.settings.min_step))),
