@@ -31,6 +31,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InputError
+from ..io.writebehind import WriteBehind
 
 log = logging.getLogger(__name__)
 
@@ -437,6 +438,7 @@ class EstimateJob:
         self.done = self.computed = self.reused = 0
         self.text = f"estimating {self.total} frames of {self.clip.path.name}"
         self._frames = None
+        self._writes = WriteBehind()  # a frame's EXR is written while the next one is estimated
         self._finished = False
 
     def _plan(self, size: tuple[int, int], source_hash: str):
@@ -514,7 +516,8 @@ class EstimateJob:
         if self.cache.is_valid(index, size):
             self.reused += 1
         else:
-            self.cache.write(index, *result())
+            d, e = result()
+            self._writes.submit(self.cache.write, index, d, e)  # the previous write's error is raised here
             self.computed += 1
         self.done += 1
         if self.done >= self.total:
@@ -551,6 +554,11 @@ class EstimateJob:
     def _close(self) -> None:
         if self._finished:
             return
+        failed: BaseException | None = None
+        try:
+            self._writes.close()  # the last frame's write; a failed one keeps the cache uncommitted
+        except BaseException as ex:  # noqa: BLE001 - re-raised once the cache is closed
+            failed = ex
         if self._frames is not None:
             self._frames.close()
         used = ""
@@ -563,11 +571,13 @@ class EstimateJob:
                 used = f"; depth: {describe_usage(self.plan, usage)}"
             self.stream.close()
         self.cache.flush()
-        if self.done >= self.total and not self.settings.defer_commit:
+        if self.done >= self.total and not self.settings.defer_commit and failed is None:
             self.cache.commit()  # a cache of other settings is replaced only now, when complete
         self.cache.close()
         self._finished = True
         self.text = f"estimated {self.computed} frames, reused {self.reused} from the cache{used}"
+        if failed is not None:
+            raise failed
 
     def cancel(self) -> None:
         """Stop; frames written so far stay valid in the cache (meta.json is flushed). A cache

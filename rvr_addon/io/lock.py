@@ -103,8 +103,8 @@ class FolderLock:
             fh.truncate()
             fh.flush()
             _unlock(fh)
-        except OSError:  # pragma: no cover - closing releases it anyway
-            pass
+        except (OSError, ValueError):  # pragma: no cover - closing releases it anyway (ValueError: the
+            pass                       # garbage collector closed the file first, at a lock left unreleased)
         finally:
             fh.close()
             if _HELD.get(self.key) is self:

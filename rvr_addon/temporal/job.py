@@ -31,6 +31,7 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError
 from ..io.readahead import ReadAhead
+from ..io.writebehind import WriteBehind
 from .filter import TemporalFilter, TemporalSettings
 
 log = logging.getLogger(__name__)
@@ -123,6 +124,7 @@ class StabilizeJob:
         self._held: dict[int, dict[str, np.ndarray]] = {}  # channels read, until their frame is written
         self._streamed = {i for a, b in self.plan for i in range(a, b)}
         self._reads = ReadAhead(self._read_valid)  # the next frame's file is read while this one is filtered
+        self._writes = WriteBehind()
         self._finished = not self.plan
         if self._finished:
             self.cache.commit()
@@ -176,25 +178,36 @@ class StabilizeJob:
             outputs = self._filter.push(index, frame, d, e)
             self.done += 1
         for t, d_s, e_s, conf in outputs:
-            if t in self.todo:
-                self.cache.write_stabilized(t, d_s, e_s, conf, existing=self._held.pop(t, None))
+            if t in self.todo:  # written while the next frame is filtered (a write's error stops the next step)
+                self._writes.submit(self._store, t, d_s, e_s, conf, self._held.pop(t, None))
                 self.todo.discard(t)
-                self.written += 1
         return True
 
+    def _store(self, t: int, d_s: np.ndarray, e_s: np.ndarray, conf: np.ndarray,
+               existing: dict[str, np.ndarray] | None) -> None:
+        self.cache.write_stabilized(t, d_s, e_s, conf, existing=existing)
+        self.written += 1
+
     def _close(self) -> None:
+        failed: BaseException | None = None
+        try:
+            self._writes.close()  # the last frame's write; a failed one keeps the cache uncommitted
+        except BaseException as ex:  # noqa: BLE001 - re-raised once the cache is closed
+            failed = ex
         if self._stream is not None:
             self._stream.close()
         self._reads.close()
         self._held.clear()
         self.cache.flush()
-        if not self.todo:
+        if not self.todo and failed is None:
             self.cache.commit()  # a fork beside the cache (other settings) replaces it only now
         self.cache.close()
         self._finished = True
         cuts = len(self._filter.cuts) if self._filter is not None else 0
         self.text = (f"stabilized {self.written} frames, kept {self.reused} already stabilized"
                      + (f"; the window restarted {cuts} time(s) (scene cuts / size changes, see the log)" if cuts else ""))
+        if failed is not None:
+            raise failed
 
     def cancel(self) -> None:
         """Stop; frames stored so far stay valid (meta.json is flushed). After the end it does nothing."""

@@ -1,4 +1,5 @@
-"""ReadAhead: the next index's read runs in the background; values and errors are those of the read."""
+"""ReadAhead and WriteBehind: reads of the next index and writes of the last one run in one background
+thread; values, order and errors are those of the calls themselves."""
 from __future__ import annotations
 
 import threading
@@ -39,3 +40,37 @@ def test_another_key_than_read_ahead_is_read_now_and_errors_surface_only_when_as
     ra.get(3, then=4)
     ra.close()
     assert ra.get(4) == 4 and ra.ahead == 0
+
+
+def test_writes_run_behind_one_at_a_time_in_order_and_an_error_stops_the_next_submit():
+    import time
+
+    from rvr_addon.io.writebehind import WriteBehind
+
+    done, running = [], []
+
+    def write(i):
+        running.append(i)
+        assert len(running) == 1  # never two at once
+        time.sleep(0.01)
+        if i == 3:
+            running.clear()
+            raise OSError("No space left on device: frame 3")
+        done.append(i)
+        running.clear()
+
+    wb = WriteBehind()
+    for i in range(3):
+        wb.submit(write, i)
+    wb.wait()
+    assert done == [0, 1, 2] and wb.submitted == 3
+    wb.submit(write, 3)
+    with pytest.raises(OSError, match="frame 3"):
+        wb.submit(write, 4)  # the previous write's error, before 4 starts
+    assert 4 not in done
+    wb.submit(write, 5)
+    wb.close()
+    assert done == [0, 1, 2, 5]
+    wb.submit(write, 3)
+    with pytest.raises(OSError, match="frame 3"):
+        wb.close()
