@@ -554,11 +554,7 @@ class EstimateJob:
     def _close(self) -> None:
         if self._finished:
             return
-        failed: BaseException | None = None
-        try:
-            self._writes.close()  # the last frame's write; a failed one keeps the cache uncommitted
-        except BaseException as ex:  # noqa: BLE001 - re-raised once the cache is closed
-            failed = ex
+        failed = self._writes.finish()  # the last frame's write; a failed one keeps the cache uncommitted
         if self._frames is not None:
             self._frames.close()
         used = ""

@@ -45,3 +45,12 @@ class WriteBehind:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
+
+    def finish(self) -> BaseException | None:
+        """:meth:`close`, returning the last write's error instead of raising it (a job closes
+        its cache first, uncommitted, then raises it)."""
+        try:
+            self.close()
+        except BaseException as ex:  # noqa: BLE001 - handed to the caller
+            return ex
+        return None

@@ -189,11 +189,7 @@ class StabilizeJob:
         self.written += 1
 
     def _close(self) -> None:
-        failed: BaseException | None = None
-        try:
-            self._writes.close()  # the last frame's write; a failed one keeps the cache uncommitted
-        except BaseException as ex:  # noqa: BLE001 - re-raised once the cache is closed
-            failed = ex
+        failed = self._writes.finish()  # the last frame's write; a failed one keeps the cache uncommitted
         if self._stream is not None:
             self._stream.close()
         self._reads.close()

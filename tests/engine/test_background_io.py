@@ -74,3 +74,16 @@ def test_writes_run_behind_one_at_a_time_in_order_and_an_error_stops_the_next_su
     wb.submit(write, 3)
     with pytest.raises(OSError, match="frame 3"):
         wb.close()
+
+
+def test_finish_hands_the_last_error_back():
+    from rvr_addon.io.writebehind import WriteBehind
+
+    def fail():
+        raise OSError("read-only file system")
+
+    wb = WriteBehind()
+    assert wb.finish() is None
+    wb.submit(fail)
+    err = wb.finish()
+    assert isinstance(err, OSError) and "read-only" in str(err)
