@@ -9,8 +9,11 @@ two people talking, a still camera; ``--clip`` another one):
 
 * 360p: the clip's first ``--seconds`` at 640x360 (``--max-size 640``);
 * 1080p: the clip upscaled to 1920x1080 once (Lanczos, into a temporary file; there is no real
-  1080p clip here) and refocused at full size for ``--seconds-1080p`` (frames cost the same
-  whatever their number; the cut keeps the bench short).
+  1080p clip here) and refocused at full size for ``--seconds-1080p`` (default 2 s, to keep the
+  bench short). Costs paid once per run (loading the network, the parallax probe over the
+  first 48 frames, the encoder's flush at the end: about 8 s at 1080p) are spread over the
+  frames, so a 2 s run overstates a longer clip's cost per frame: ``--seconds-1080p 10`` measures
+  a 10-second clip.
 
 Keys (DESIGN.md style): ``pipeline.<size>.s_per_frame`` (wall), ``pipeline.<size>.cpu_s_per_frame``,
 ``pipeline.<size>.stage.<name>.s_per_frame`` (the JobChain's per-stage wall time),
