@@ -435,6 +435,7 @@ class EstimateJob:
 
             self.stream = DepthStream(self.plan, size, self.estimator)
         self._all_cached: bool | None = None
+        self._valid: set[int] = set()  # frames found intact in the cache by this run
         self.done = self.computed = self.reused = 0
         self.text = f"estimating {self.total} frames of {self.clip.path.name}"
         self._frames = None
@@ -493,11 +494,13 @@ class EstimateJob:
             self._frames = iter_frames(self.settings.input, start=self.start, stop=self.stop)
             if self.stream is not None:
                 size = (self.clip.width, self.clip.height)
-                self._all_cached = all(self.cache.is_valid(i, size) for i in range(self.start, self.stop))
+                self._all_cached = all(self._check(i, size) for i in range(self.start, self.stop))
                 if not self._all_cached:  # the cues keep clip-wide state: run them over every frame
                     self._frames = self.stream.frames(self._frames)
         if self.stream is not None and not self._all_cached:
             return self._step_stream()
+        if self._all_cached:  # every frame was found valid just above: nothing to decode, read or compute
+            return self._record(self.start + self.done, (self.clip.width, self.clip.height), None)
         frame = next(self._frames, None)
         if frame is None:
             if self.done < self.total:
@@ -510,10 +513,20 @@ class EstimateJob:
         index = self.start + self.done
         return self._record(index, (frame.shape[1], frame.shape[0]), lambda: self.compute(frame, index))
 
+    def _check(self, index: int, size: tuple[int, int]) -> bool:
+        """True if the cache holds frame ``index`` intact at size (w, h); remembered, so a frame
+        is read to check it once per run (this job holds the cache's lock: nobody rewrites it)."""
+        if index in self._valid:
+            return True
+        if self.cache.is_valid(index, size):
+            self._valid.add(index)
+            return True
+        return False
+
     def _record(self, index: int, size: tuple[int, int], result) -> bool:
         """Write frame ``index``'s (D, E) = ``result()`` unless the cache holds it; count it; False
         once the range is done."""
-        if self.cache.is_valid(index, size):
+        if self._check(index, size):
             self.reused += 1
         else:
             d, e = result()

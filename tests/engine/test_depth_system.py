@@ -252,3 +252,33 @@ def test_a_resumed_auto_run_equals_an_uninterrupted_one(moving_clip, tmp_path, w
 def test_plan_key_of_one_cue_has_no_fusion_settings():
     assert "fusion" not in DepthPlan("network", ("network",)).key()
     assert "fusion" in DepthPlan("auto", ("people", "network")).key()
+
+
+def test_a_reused_auto_run_reads_each_frame_once_and_decodes_none(still_clip, tmp_path, weights, fake_people,
+                                                                   monkeypatch):
+    """Editors re-run often: with every frame of the cache intact, an auto run checks each
+    frame file once (not once in the up-front check and again when counting it) and neither
+    decodes the clip nor runs a cue."""
+    from collections import Counter
+
+    import rvr_addon.estimate.cache as cache_mod
+    import rvr_addon.io.video as video
+
+    cache = tmp_path / "cache"
+    run(still_clip, cache, weights=weights)
+    reads: Counter = Counter()
+    real = cache_mod.read_exr
+
+    def counting(path):
+        reads[path.name] += 1
+        return real(path)
+
+    def no_decode(*a, **k):
+        raise AssertionError("a fully cached run decoded the clip")
+        yield  # pragma: no cover
+
+    monkeypatch.setattr(cache_mod, "read_exr", counting)
+    monkeypatch.setattr(video, "iter_frames", no_decode)
+    again = run(still_clip, cache, weights=weights)
+    assert (again.computed, again.reused) == (0, 6)
+    assert sorted(reads.values()) == [1] * 6, reads
