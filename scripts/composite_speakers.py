@@ -196,7 +196,6 @@ def build_shots(out_dir: str | Path, kind: str = "shot_reverse_shot", clips: Pat
     each new shot, shots: first frame + head box + name) and OUT_DIR/<kind>_depth.npy ((N, h, w)
     float32 at ``depth_size`` (w, h) px, one map per frame: the shown person's head and torso at the
     person's disparity, the rest at the background's); returns the three paths."""
-    import imageio_ffmpeg
 
     from rvr_addon.laaf.audio import decode_audio
 
@@ -252,31 +251,21 @@ def build_shots(out_dir: str | Path, kind: str = "shot_reverse_shot", clips: Pat
                                   "over": person.name})
 
     video = out_dir / f"{kind}.mp4"
-    pcm = (np.clip(np.concatenate(audio), -1, 1) * 32767).astype("<i2")
     dw, dh = depth_size
     depth = np.full((len(rows), dh, dw), float(spec["background"]), np.float32)
-    with tempfile.TemporaryDirectory() as tmp:
-        wav = Path(tmp) / "a.wav"
-        with wave.open(str(wav), "wb") as w:
-            w.setnchannels(1)
-            w.setsampwidth(2)
-            w.setframerate(RATE)
-            w.writeframes(pcm.tobytes())
-        writer = imageio_ffmpeg.write_frames(str(video), size, fps=FPS, quality=8, macro_block_size=8,
-                                             audio_path=str(wav), audio_codec="aac", output_params=["-shortest"],
-                                             ffmpeg_log_level="error")
-        writer.send(None)
+
+    def shot_frames():
         for k, (pi, src) in enumerate(rows):
             person = persons[pi]
             frames = sources[person.clip]
-            writer.send(np.ascontiguousarray(_panel_image(frames[min(max(src, 0), len(frames) - 1)], person.crop,
-                                                          size)))
+            yield _panel_image(frames[min(max(src, 0), len(frames) - 1)], person.crop, size)
             # head and torso (the head box widened by a third and down to the bottom of the frame)
             x, y, w, h = _box_in_shot(person, size)
             x0, x1 = max(x - w / 6, 0), min(x + w * 7 / 6, size[0])
             depth[k, int(round(y * dh / size[1])):, int(round(x0 * dw / size[0])):int(round(x1 * dw / size[0]))] = \
                 person.disparity
-        writer.close()
+
+    _write_video(video, size, audio, shot_frames())
     ann = {"clip": video.name, "fps": FPS, "turns": turns_json, "offscreen": offscreen, "cuts": cuts,
            "shots": shots_json,
            "persons": [{"name": p.name, "clip": p.clip, "disparity": p.disparity} for p in persons],
@@ -288,6 +277,28 @@ def build_shots(out_dir: str | Path, kind: str = "shot_reverse_shot", clips: Pat
     depth_path = out_dir / f"{kind}_depth.npy"
     np.save(depth_path, depth)
     return video, annotation, depth_path
+
+
+def _write_video(video: Path, size: tuple[int, int], audio: list[np.ndarray], frames) -> None:
+    """Write ``frames`` ((h, w, 3) uint8 RGB, ``size`` = (w, h)) at FPS with the mono ``audio``
+    chunks (float in [-1, 1] at RATE) as an H.264 + AAC MP4."""
+    import imageio_ffmpeg
+
+    pcm = (np.clip(np.concatenate(audio), -1, 1) * 32767).astype("<i2")
+    with tempfile.TemporaryDirectory() as tmp:
+        wav = Path(tmp) / "a.wav"
+        with wave.open(str(wav), "wb") as w:
+            w.setnchannels(1)
+            w.setsampwidth(2)
+            w.setframerate(RATE)
+            w.writeframes(pcm.tobytes())
+        writer = imageio_ffmpeg.write_frames(str(video), size, fps=FPS, quality=8, macro_block_size=8,
+                                             audio_path=str(wav), audio_codec="aac", output_params=["-shortest"],
+                                             ffmpeg_log_level="error")
+        writer.send(None)
+        for frame in frames:
+            writer.send(np.ascontiguousarray(frame))
+        writer.close()
 
 
 def _frames(clip: Path) -> list[np.ndarray]:
@@ -315,7 +326,6 @@ def build(out_dir: str | Path, kind: str = "grid_restaurant", clips: Path = CLIP
     OUT_DIR/<kind>_depth.npy (disparity 1.0 on the left panel, 3.0 on the right); returns them. An edited kind (``SHOT_KINDS``) is written by :func:`build_shots`."""
     if kind in SHOT_KINDS:
         return build_shots(out_dir, kind, clips)
-    import imageio_ffmpeg
 
     from rvr_addon.laaf.audio import decode_audio
 
@@ -384,26 +394,16 @@ def build(out_dir: str | Path, kind: str = "grid_restaurant", clips: Path = CLIP
 
     name = kind
     video = out_dir / f"{name}.mp4"
-    pcm = (np.clip(np.concatenate(audio), -1, 1) * 32767).astype("<i2")
-    with tempfile.TemporaryDirectory() as tmp:
-        wav = Path(tmp) / "a.wav"
-        with wave.open(str(wav), "wb") as w:
-            w.setnchannels(1)
-            w.setsampwidth(2)
-            w.setframerate(RATE)
-            w.writeframes(pcm.tobytes())
-        writer = imageio_ffmpeg.write_frames(str(video), (pw * len(panels), ph), fps=FPS, quality=8,
-                                             macro_block_size=8, audio_path=str(wav), audio_codec="aac",
-                                             output_params=["-shortest"], ffmpeg_log_level="error")
-        writer.send(None)
+    def panel_frames():
         for row in schedule:
             tiles = []
             for i, p in enumerate(panels):
                 frames = sources[p.clip]
                 k = int(min(max(round(row[i] * FPS), 0), len(frames) - 1))
                 tiles.append(_panel_image(frames[k], p.crop, (pw, ph)))
-            writer.send(np.ascontiguousarray(np.hstack(tiles)))
-        writer.close()
+            yield np.hstack(tiles)
+
+    _write_video(video, (pw * len(panels), ph), audio, panel_frames())
     ann = {"clip": video.name, "fps": FPS, "turns": turns_json, "offscreen": offscreen, "cuts": [],
            "panels": [{"box": [i * pw, 0, pw, ph], "name": p.name, "clip": p.clip} for i, p in enumerate(panels)],
            "how": "built by scripts/composite_speakers.py: per turn one panel plays its own speech with its own "
