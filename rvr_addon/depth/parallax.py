@@ -43,7 +43,10 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
    |log ratio| of two pairs' maps, the spread of a pair's map against the earlier frames'
    prediction at the tracks): under SNR_RANGE the map holds nothing the noise does not, and the
    whole frame's confidence goes down with it (small baselines against rotation, motion blur,
-   distant scenes), so the fusion falls back on the prior. The scale chain keeps the geometric
+   distant scenes), so the fusion falls back on the prior. The clip's gate (:func:`clip_gate`, the median SNR
+   of its frames) covers its first frames too: they are held back (at most GATE_HOLD_FRAMES)
+   until CLIP_SNR_MIN_FRAMES frames have an SNR (TUM fr1/rpy: its first 3 frames handed the
+   fusion noise, 0.93-0.98 against the network's 0.65-0.73). The scale chain keeps the geometric
    confidence.
 8. **Memory.** The maps of the PROPAGATE_FRAMES latest output frames of the chain are carried
    into t: t's flow into n samples n's inverse depth, t's pose from n (the PnP of step 5) moves
@@ -149,6 +152,9 @@ confidence."""
 CLIP_SNR_MIN_FRAMES = 3
 """Frames with a signal to noise the clip's gate (the median SNR so far
 through SNR_RANGE, :func:`clip_gate`) waits for before it gates anything."""
+GATE_HOLD_FRAMES = 6
+"""At most this many of a clip's first maps are held back until the clip's gate can judge them
+(:meth:`ParallaxEstimator.maps`); each costs two maps of the full frame in memory."""
 SPIKE_RATIO = 4.0
 """A pair's inverse depth above this many times the 95th percentile of its trusted values is
 dropped (a near object covering under 5 % of the frame, or a flow error)."""
@@ -562,12 +568,29 @@ class ParallaxEstimator:
 
     def maps(self, frames: Iterable[np.ndarray]) -> Iterator[CueMap]:
         """One :class:`CueMap` per input frame ((H, W, 3) uint8 RGB), in order; frame t is
-        yielded once frame t + window has been read (or the clip ended)."""
+        yielded once frame t + window has been read (or the clip ended). The clip's first maps
+        are held back until CLIP_SNR_MIN_FRAMES frames have a signal to noise (at most
+        GATE_HOLD_FRAMES maps): the clip's gate (:func:`clip_gate`) then applies to them too
+        (:func:`start_gate`), so the frames before the clip can be judged do not hand the
+        fusion noise the clip's later frames are found to be."""
         run = _Run(self)
         buf: list[_Frame] = []
+        held: list[CueMap] = []
         done = 0  # index of the next frame to output
         calibrate = self.K is None and self.refine_focal
         n_cal = max(2 * self.window + 1, CAL_FRAMES)
+
+        def emit(m: CueMap | None) -> list[CueMap]:
+            if m is not None:
+                if not held and len(run.snrs) >= CLIP_SNR_MIN_FRAMES:
+                    return [m]  # the gate is running: output() applied it
+                held.append(m)
+                if len(run.snrs) < CLIP_SNR_MIN_FRAMES and len(held) < GATE_HOLD_FRAMES:
+                    return []
+            out = [_gated(x, start_gate(run.snrs)) for x in held]
+            held.clear()
+            return out
+
         for i, frame in enumerate(frames):
             buf.append(run.add(i, frame, buf[-1] if buf else None))
             if calibrate:
@@ -576,15 +599,16 @@ class ParallaxEstimator:
                 run.refine_focal(buf)
                 calibrate = False
             while done + self.window <= buf[-1].index:
-                yield run.output(buf, done - buf[0].index)
+                yield from emit(run.output(buf, done - buf[0].index))
                 done += 1
                 while buf[0].index < done - self.window:
                     run.forget(buf.pop(0).index)
         if calibrate and buf:
             run.refine_focal(buf)
         while buf and done <= buf[-1].index:
-            yield run.output(buf, done - buf[0].index)
+            yield from emit(run.output(buf, done - buf[0].index))
             done += 1
+        yield from emit(None)
 
     def camera_translates(self, frames: Iterable[np.ndarray], max_frames: int = 60,
                           exclude: Callable[[np.ndarray], np.ndarray | None] | None = None) -> tuple[bool, str]:
@@ -1125,6 +1149,27 @@ def clip_gate(snrs: list[float]) -> float:
         return 1.0
     med = float(np.median(snrs))
     return float(np.clip((med - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0.0, 1.0))
+
+
+def start_gate(snrs: list[float]) -> float:
+    """The gate of the maps held back at a clip's start (:meth:`ParallaxEstimator.maps`):
+    :func:`clip_gate` once CLIP_SNR_MIN_FRAMES frames have a signal to noise, else the median of
+    those there are through SNR_RANGE, and 1 when none has one (nothing to judge by)."""
+    if len(snrs) >= CLIP_SNR_MIN_FRAMES:
+        return clip_gate(snrs)
+    if not snrs:
+        return 1.0
+    med = float(np.median(snrs))
+    return float(np.clip((med - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0.0, 1.0))
+
+
+def _gated(m: CueMap, gate: float) -> CueMap:
+    """``m`` with its confidence times ``gate`` (info ``clip_gate``); ``m`` itself when gate >= 1."""
+    if gate >= 1.0:
+        return m
+    info = dict(m.info, clip_gate=round(gate, 3))
+    return CueMap(m.name, m.inverse_depth, (m.confidence * np.float32(gate)).astype(np.float32), m.metric,
+                  m.shift_free, info)
 
 
 def _merge(q_a: np.ndarray, c_a: np.ndarray, q_b: np.ndarray, c_b: np.ndarray, k_a: np.ndarray,

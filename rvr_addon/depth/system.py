@@ -178,7 +178,8 @@ class DepthStream:
     """Runs a plan's cues over one clip's frames in order and yields fused (D, E, FusedDepth).
 
     network: the estimator (D and E of one frame). The parallax cue looks ``window`` frames
-    ahead, so frames are held in a bounded queue (at most window + 1 full frames).
+    ahead (and holds back a clip's first maps until its gate can judge them), so frames are held
+    in a bounded queue (at most window + GATE_HOLD_FRAMES + 1 full frames).
     """
 
     def __init__(self, plan: DepthPlan, size: tuple[int, int], network: Network) -> None:

@@ -198,3 +198,25 @@ def test_4k_frame_full_size_finite_and_memory_bounded():
     assert np.isfinite(out.disparity).all()
     plane = h * w * 4  # one full-size float32 map (33 MB)
     assert peak < 12 * plane, f"peak {peak / 1e6:.0f} MB"  # a few full-size planes, not per-layer copies
+
+
+def test_what_the_network_puts_clearly_in_front_of_a_person_stays_in_front():
+    """A person in the background (2 m) behind a desk the network puts far nearer: the ceiling
+    around the person must not push the desk behind the person; the backdrop the network puts at
+    the person's depth is still pushed behind (front_ratio 0: everything is capped, as before)."""
+    boxes = [(60, 10, 100, 50, 2.0)]
+    frame = with_people(textured(), boxes)
+    net_d = np.zeros((H, W), np.float32)
+    K = lens_constant(W)
+    net_d[60:, :] = -K * 1.0  # the desk: 1 1/m nearer than the rest by the network (lens slope)
+    outs = {}
+    for ratio in (1.5, 0.0):
+        fuser = DepthFuser(W, FusionSettings(front_ratio=ratio))
+        outs[ratio] = q_of(fuser(frame, net_d, [person_cue((H, W), boxes)]).disparity, fuser)
+    desk = (slice(70, 96), slice(50, 110))
+    backdrop = (slice(10, 50), slice(40, 56))
+    q_person = 1 / 2.0
+    assert np.median(outs[1.5][desk]) > 2.0 * q_person  # measured 1.5: the network says 1 1/m nearer
+    assert np.median(outs[0.0][desk]) < 1.2 * q_person  # measured 0.4: capped at 0.8 x the person
+    for ratio in (1.5, 0.0):
+        assert np.percentile(outs[ratio][backdrop], 90) <= 0.8 * q_person * 1.03

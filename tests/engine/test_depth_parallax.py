@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from rvr_addon.depth.cues import CueMap, focal_px
-from rvr_addon.depth.parallax import SNR_RANGE, ParallaxEstimator, clip_gate, default_K, triangulate, upsample
+from rvr_addon.depth.parallax import (SNR_RANGE, ParallaxEstimator, clip_gate, default_K, start_gate, triangulate,
+                                     upsample)
 from rvr_addon.estimate.evaluate import affine_invariant_error
 
 W, H = 320, 240
@@ -309,3 +310,38 @@ def test_the_clip_gate_distrusts_a_clip_whose_frames_are_mostly_noise():
     assert clip_gate([1.5, 1.8, 2.9, 1.7]) == 0.0
     assert clip_gate([7.0, 5.8, 10.3]) == 1.0
     assert clip_gate([lo, (lo + hi) / 2, hi]) == pytest.approx(0.5)
+
+
+def test_start_gate_judges_the_first_frames_with_what_there_is():
+    lo, hi = SNR_RANGE
+    assert start_gate([]) == 1.0  # nothing to judge by
+    assert start_gate([1.0]) == 0.0 and start_gate([hi + 1.0]) == 1.0
+    assert start_gate([lo, hi]) == pytest.approx(0.5)
+    assert start_gate([1.5, 1.8, 2.9, 1.7]) == clip_gate([1.5, 1.8, 2.9, 1.7]) == 0.0
+
+
+@pytest.mark.parametrize("snr, kept", [(1.0, False), (10.0, True)])
+def test_the_clip_gate_also_covers_the_first_frames(monkeypatch, snr, kept):
+    """The first maps wait until the clip's gate can judge them: in a clip whose frames are all
+    noise (every frame's SNR forced to 1) no frame keeps any confidence, the first ones included
+    (they used to pass before the gate had CLIP_SNR_MIN_FRAMES frames); a clean clip keeps them."""
+    import rvr_addon.depth.parallax as parallax
+
+    frames, _ = translating_clip(n=10)
+    own = parallax._Run._current
+
+    def forced(self, buf, c, poses):
+        cur, why, best = own(self, buf, c, poses)
+        if cur is not None:
+            cur[3]["snr"] = snr
+        return cur, why, best
+
+    monkeypatch.setattr(parallax._Run, "_current", forced)
+    maps = list(ParallaxEstimator(window=4).maps(iter(frames)))
+    assert len(maps) == len(frames)
+    assert [m.info.get("neighbours") is not None for m in maps] == [True] * len(frames)
+    cover = [float((m.confidence > 0.5).mean()) for m in maps]
+    if kept:
+        assert min(cover) > 0.3 and all("clip_gate" not in m.info for m in maps)
+    else:
+        assert max(cover) == 0.0 and all(m.info.get("clip_gate") == 0.0 for m in maps)
