@@ -448,7 +448,9 @@ class AutofocusJob:
             log.debug("step at frame %d: focus moved on since; dropped", e)
             return
         p = self.settings.pull
-        cut_tg = next((tg for tg in self.targets if first > 0 and tg.nft.t == first and tg.nft.detail.get("cut")), None)
+        # the shot's first target: a cut's, or the clip's initial focus (frame 0 is a shot's start too)
+        cut_tg = next((tg for tg in self.targets if tg.nft.t == first
+                       and (tg.nft.detail.get("cut") or tg.nft.detail.get("start"))), None)
         if (cut_tg is not None and not self.causal and self.calm.hold_frames
                 and e - p.lead_frames - p.pull_frames < first + self.calm.hold_frames
                 and not any(first < tg.nft.t for tg in self.targets)):
@@ -511,11 +513,13 @@ class AutofocusJob:
             region = Region(w / 2, h / 2, box, mask, 0.04, ())
             source = "initial"
         nft = self._nft_from_region(region, t, source, known_at=max(t - 1, 0), subject=None)
+        speech = self.detectors.get("speech")
+        on_face = "face" in region.detectors or (speech is not None and speech.available
+                                                 and "speech" in region.detectors and speech.decide(t)[2] is not None)
         if t > 0:
-            speech = self.detectors.get("speech")
-            on_face = "face" in region.detectors or (speech is not None and speech.available
-                                                     and "speech" in region.detectors and speech.decide(t)[2] is not None)
             nft = replace(nft, pull_frames=1, lead_frames=0, detail={"cut": True, "on_face": bool(on_face)})
+        else:  # the clip's first focus: look-ahead may still replace it by the subject found just after
+            nft = replace(nft, detail={"start": True, "on_face": bool(on_face)})
         self._add_target(nft, region.box, t, ingest, mask=region.mask)
 
     def _source(self, used: tuple[str, ...]) -> str:
@@ -570,16 +574,17 @@ class AutofocusJob:
                   subject=outputs_tid, detail={"level_before": round(step.before, 4), "level_after": round(step.after, 4)})
         if at_cut is not None:
             c = at_cut.nft.t
-            nft = replace(nft, t=c, known_at=max(c - 1, 0), pull_frames=1, lead_frames=0,
-                          detail={**nft.detail, "cut": True, "subject_from_frame": int(e)})
+            nft = replace(nft, t=c, known_at=max(c - 1, 0), pull_frames=at_cut.nft.pull_frames,
+                          lead_frames=at_cut.nft.lead_frames,
+                          detail={**nft.detail, "cut" if c > 0 else "start": True, "subject_from_frame": int(e)})
         tg = self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
         if at_cut is not None:
             if not np.isfinite(tg.level[at_cut.nft.t]):  # not there yet on the cut frame
                 self.targets.remove(tg)
                 return False
             self.targets.remove(at_cut)
-            log.debug("the subject of the shot from frame %d is the one of frame %d: focus on it at the cut",
-                      at_cut.nft.t, e)
+            log.debug("the subject of the shot from frame %d is the one of frame %d: focus on it from the shot's "
+                      "first frame", at_cut.nft.t, e)
         return True
 
     def _commit_learned(self, cand, ingest: int) -> None:

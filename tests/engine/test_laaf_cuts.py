@@ -251,3 +251,27 @@ def test_a_cut_frame_is_measured_in_its_own_faces():
         features, _ = analyser.measure(AnalysisFrame(t, np.dstack([g] * 3), g, None, 1.0, 25.0), cut=t == 10)
         seen[t] = features["speech"]
     assert seen[9] == (True, [old]) and seen[10] == (False, [new]) and seen[11] == (True, [new])
+
+
+def test_lookahead_focuses_the_first_subject_on_the_first_frame(tmp_path):
+    """The clip's first frame starts a shot too: a subject there that the detectors pick up only
+    a few frames later (it starts moving at frame 8) is the first focus itself in look-ahead
+    mode (no pull to it at the start, no change of target); causal mode cannot see it coming."""
+    w, h = 128, 72
+    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
+    obj = texture(20, 20, 8)
+    frames, maps = [], []
+    for k in range(40):
+        x0 = 30 + max(0, k - 8) * 2
+        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
+        f[26:46, x0:x0 + 20] = obj
+        d[26:46, x0:x0 + 20] = 2.0
+        frames.append(f)
+        maps.append(d)
+    clip = write_clip(tmp_path, frames, maps)
+    la = _run(clip)
+    assert la.focus[0] == pytest.approx(2.0, abs=0.2) and np.allclose(la.focus[:20], la.focus[0], atol=0.1)
+    assert [n.t for n in la.nfts] == [0] and la.nfts[0].detail.get("start")
+    assert not la.nfts[0].detail.get("cut")  # frame 0 is no cut
+    causal = _run(clip, causal=True)
+    assert "subject_from_frame" not in causal.nfts[0].detail  # no hindsight in causal mode

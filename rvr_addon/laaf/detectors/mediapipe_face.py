@@ -6,6 +6,14 @@ HOG misses) and the refined face mesh, run on a square crop around each face box
 opening is ``people.mouth_opening`` (inner-lip gap / mouth width, 0 closed, ~0.3-0.6 wide open): a
 ratio of the face's own size, so it compares across faces and distances.
 
+The full-range model misses close-ups (a head filling much of the frame: on the shot/reverse-shot
+composite 4 of its 22 detection frames in two close-up shots, where the speech detector then fell
+back to audio-visual synchrony and focused the wall). Where it finds no face, the short-range
+model (``model_selection=0``, made for faces within ~2 m of the camera) looks again
+(``close_range``; it found the face on all four of those frames, scores 0.87-0.90): one extra
+model run on the frames without a face only. Its boxes must score ``close_min_score`` (0.75):
+on textures it finds "faces" at 0.6.
+
 The mesh runs on the *native* frame where the caller has it (``AnalysisFrame.native``, present
 while a frame is measured): at a 320 px analysis width a face of an interview is ~50 px and its
 lip gap a few px; at 720p it is four times that. Boxes come and go in analysis px.
@@ -38,11 +46,16 @@ class MediaPipeFaces:
     """Face boxes (full-range detector) and mouth openings (face mesh) of RGB frames.
 
     min_score: the face detector's threshold. detect / mesh: which models load (first use).
+    close_range: where the full-range model finds no face, the short-range one looks again
+    (module docstring), keeping its boxes of score >= close_min_score.
     """
 
-    def __init__(self, min_score: float = 0.5, detect: bool = True, mesh: bool = True) -> None:
+    def __init__(self, min_score: float = 0.5, detect: bool = True, mesh: bool = True,
+                 close_range: bool = True, close_min_score: float = 0.75) -> None:
         self.min_score = float(min_score)
+        self.close_min_score = float(close_min_score)
         self._want = {"faces": detect, "mesh": mesh}
+        self.close_range = bool(close_range) and detect
         self._models: dict[str, Any] | None = None
 
     def load(self) -> dict[str, Any]:
@@ -54,6 +67,19 @@ class MediaPipeFaces:
 
         models = people.open_models("LAAF's MediaPipe faces", segment=False,
                                     faces=self.min_score if self._want["faces"] else None, mesh=self._want["mesh"])
+        if self.close_range:
+            try:
+                with people.native_stderr_silenced():
+                    close = people.import_mediapipe().solutions.face_detection.FaceDetection(
+                        min_detection_confidence=max(self.min_score, self.close_min_score), model_selection=0)
+                    close.process(np.zeros((64, 64, 3), np.uint8))
+            except Exception as exc:  # mediapipe raises RuntimeError/ValueError from its C++ graph
+                for model in models.values():
+                    model.close()
+                raise people.PeopleModelError(f"LAAF's MediaPipe faces could not load mediapipe's short-range face "
+                                              f"model ({exc}); reinstall {people.MEDIAPIPE_PIN}: "
+                                              f"{people.INSTALL_HINT}") from exc
+            models["faces_close"] = close
         self._models = models
         return models
 
@@ -70,9 +96,20 @@ class MediaPipeFaces:
             pass
 
     def detect(self, rgb: np.ndarray) -> list[tuple[Box, float]]:
-        """Face boxes (x, y, w, h) px of an (H, W, 3) uint8 RGB frame with their scores."""
-        h, w = rgb.shape[:2]
-        result = self.load()["faces"].process(np.ascontiguousarray(rgb))
+        """Face boxes (x, y, w, h) px of an (H, W, 3) uint8 RGB frame with their scores: the
+        full-range model's, or where it finds none the short-range model's (``close_range``)."""
+        models = self.load()
+        rgb = np.ascontiguousarray(rgb)
+        out = self._boxes(models["faces"].process(rgb), rgb.shape)
+        if not out and "faces_close" in models:
+            out = [(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
+                   if score >= self.close_min_score]
+        return out
+
+    @staticmethod
+    def _boxes(result: Any, shape: tuple[int, ...]) -> list[tuple[Box, float]]:
+        """A face-detection result's boxes (x, y, w, h) px in a frame of ``shape``, with scores."""
+        h, w = shape[:2]
         out = []
         for det in result.detections or []:
             b = det.location_data.relative_bounding_box

@@ -189,7 +189,7 @@ class SpeechDetector(FocusDetector):
                  start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25,
                  sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
                  mouth: str = "auto", mouth_window_s: float = 1.0, mouth_min_activity: float = 0.02,
-                 max_lag_s: float = 0.0, mouth_rel_activity: float = 0.5, none_score: float = 0.15,
+                 max_lag_s: float = 0.0, mouth_rel_activity: float = 0.3, none_score: float = 0.15,
                  switch_cost: float = 8.0, voice_weight: float = 0.7, smooth_s: float = 0.5, pause_cost: float = 2.5,
                  onset_s: float = 0.2, commit_s: float = 0.5, voice_id_weight: float = 1.0,
                  mesh_every: int = 1, motion_weight: float = 0.5, seg_margin: int = 2) -> None:
