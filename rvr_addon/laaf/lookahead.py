@@ -22,7 +22,9 @@ analysis frame, or the user gives the cut list (``cuts``; ``detect_cuts`` False:
 cut every track ends (targets, face tracks: ``FocusDetector.cut``), the new shot's subject
 becomes a target on the cut frame itself (a hard change: ``PullTarget.at_cut``; look-ahead: a
 subject picked up soon after the cut and tracked back to it replaces that target, except a
-region no face holds replacing a target on a face), the cut is found before its frame is
+region no face holds replacing a target on a face; the clip's first focus, on frame 0, is replaced
+the same way, so a subject found just after the start is the first focus, not a pull at the start),
+the cut is found before its frame is
 measured (its faces detected afresh, no pairwise cue across it), steps of the
 focus signal next to a cut are the cut itself and make no NFT, and no pull crosses a cut
 (``puller.schedule_pulls``). Focus that holds: the ``calm`` knob (:mod:`.calm`) raises the

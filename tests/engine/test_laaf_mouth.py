@@ -201,3 +201,38 @@ def test_a_speaker_whose_mouth_moves_less_than_a_muted_talkers_is_still_a_candid
     assert det.mouth_rel_activity == pytest.approx(0.3)
     decided = [det.decided[t][2] for t in range(20, n - 5)]
     assert "B" not in decided and decided.count("A") >= 0.9 * len(decided)
+
+
+def test_a_close_up_the_full_range_model_misses_is_found_by_the_short_range_one():
+    """Issue 23 (shot/reverse-shot): MediaPipe's full-range face model lost close-up faces on 4 of
+    22 detection frames and audio-visual synchrony then focused the wall. Where it finds no face
+    the short-range model looks again; its boxes must score 0.75 (on textures it finds "faces"
+    at 0.6); where the full-range model finds a face the short-range one is not run."""
+
+    class Box:
+        def __init__(self, x, y, w, h):
+            self.xmin, self.ymin, self.width, self.height = x, y, w, h
+
+    class Det:
+        def __init__(self, score, box):
+            self.score = [score]
+            self.location_data = type("L", (), {"relative_bounding_box": Box(*box)})()
+
+    class Model:
+        def __init__(self, dets):
+            self.dets, self.calls = dets, 0
+
+        def process(self, rgb):
+            self.calls += 1
+            return type("R", (), {"detections": self.dets})()
+
+    faces = mediapipe_face.MediaPipeFaces(mesh=False)
+    assert faces.close_range and faces.close_min_score == pytest.approx(0.75)
+    full, close = Model([]), Model([Det(0.9, (0.25, 0.1, 0.5, 0.8)), Det(0.6, (0.0, 0.0, 0.1, 0.1))])
+    faces._models = {"faces": full, "faces_close": close}
+    rgb = np.zeros((100, 200, 3), np.uint8)
+    (box, score), = faces.detect(rgb)
+    assert box == pytest.approx((50.0, 10.0, 100.0, 80.0)) and score == pytest.approx(0.9)
+    full.dets = [Det(0.7, (0.1, 0.1, 0.2, 0.2))]
+    assert [b for b, _ in faces.detect(rgb)] == [pytest.approx((20.0, 10.0, 40.0, 20.0))] and close.calls == 1
+    faces._models = None  # nothing to close

@@ -1,5 +1,6 @@
 """Face detector H_face: MediaPipe's full-range face detector where ``mediapipe`` imports (the
-default: it finds profiles and faces of a few dozen px that HOG misses), else dlib's HOG frontal
+default: it finds profiles and faces of a few dozen px that HOG misses; a close-up it misses, the
+short-range model looks for: ``mediapipe_face``), else dlib's HOG frontal
 face detector (as the paper used dlib), else OpenCV's Haar cascades (frontal + profile, shipped in
 ``cv2.data.haarcascades``). ``backend='auto'`` takes the first that loads and logs one line saying
 which runs; 'mediapipe', 'dlib' and 'haar' ask for one (RuntimeError naming the fix if missing).

@@ -12,8 +12,10 @@ voiced frame t a face's *evidence* is the Pearson correlation of its opening wit
 envelope over a window of ``mouth_window_s`` (centred on t in look-ahead mode, ending at t in
 causal mode, clipped to the voiced segment +-2 frames). A face is a candidate only if its mouth
 moves (standard deviation of the opening in the window >= ``mouth_min_activity`` and >=
-``mouth_rel_activity`` of the most active mouth on screen: a listener's nearly closed mouth,
-whose twitches can correlate by chance, does not compete with an articulating one).
+``mouth_rel_activity``, 0.3, of the most active mouth on screen: a listener's nearly closed
+mouth, whose twitches can correlate by chance, does not compete with an articulating one; at 0.5
+a speaker whose mouth opened half as much as a muted talker's, a small panel's presenter on the
+interview-halves composite, was no candidate in either of his first and last turns).
 
 The per-frame evidence is weak (a 1 s correlation of a real mouth with its voice is 0.2-0.6, a
 muted talker's with someone else's voice reaches 0.3 by chance, 0.8 for half a second at the
