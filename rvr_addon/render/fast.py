@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import os
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import cv2
@@ -61,11 +61,21 @@ and the coverage then take different blurs: a uniform colour brighter than white
 uniform); the coverage exactly at full resolution (58 dB on the real depth map even from 4 px, but
 the same mismatch, and its full-resolution blur costs most of what the reduction saves).
 ``FastRenderer(half_res_radius=None)`` keeps every layer exact."""
+COVERAGE_SNAP = 1e-6
+"""A pixel's coverage within this of 1 counts as 1 in the resolve (model step 5). A fully covered
+pixel's coverage sums to 1 - 1.2e-7 or 1 in float32 depending on the order of the sums (tiles, DFT
+sizes), and the model's fill treats the two differently beside a much farther background: at
+``1 - w = 1.2e-7`` the push takes the farther coarse fill instead of the pixel's own sample (its depth
+factor, e^-2 a step, outweighs the pixel's weight), and that fill spreads to the neighbours the
+level-1 fill serves. The float64 reference sums to 1 within 1e-15 there, so the snap brings the fast
+path to it (on the render tests' frame with a foreground 11 steps in front: 6e-5 -> 1e-7 of the peak)."""
 PUSH_PULL_NUMPY_BELOW = 16
 """Push-pull levels with a side below this many px are done in plain numpy (they are tiny, and
 OpenCV's Python bindings read an (n <= 4, 1) array as a scalar)."""
 SCALAR_LIKE_ROWS = 4
 """OpenCV's Python bindings take a 2-D array of shape (n, 1) with n <= this for a scalar."""
+STRIPE_MIN_ROWS = 64
+"""Frame-wide steps are split into row stripes of at least this many rows for the worker threads."""
 
 # the cost model of a layer's rectangles, in ns, measured on the project's 2-core machine with one
 # OpenCV thread (the constants only rank ways of cutting a layer; cost.py turns work into seconds)
@@ -158,11 +168,19 @@ class FastRenderer:
             plan = plan_for_radius_map(s, max_step=self.max_step, min_layers=self.min_layers)
         j_lo, j_hi = int(plan.indices.min()), int(plan.indices.max())
         u = np.clip(s / np.float32(plan.step), j_lo, j_hi).astype(np.float32)
-        inv_norm = cv2.divide(1.0, matte_normaliser_cv(u, j_lo, j_hi))
-        active = self._active_layers(u, j_lo, j_hi)
         h, w = u.shape
-        channels = cv2.split(radiance.astype(np.float32, copy=False))
+        # the matte normaliser and the colour planes on the worker threads (in row stripes) while this
+        # thread plans the layers' rectangles
+        inv_norm = np.empty((h, w), np.float32)
+
+        def normalise(rows: slice) -> None:
+            cv2.divide(1.0, matte_normaliser_cv(u[rows], j_lo, j_hi), dst=inv_norm[rows])
+
+        pending = [self._submit(normalise, rows) for rows in self._stripes(h)]
+        pending.append(self._submit(cv2.split, radiance.astype(np.float32, copy=False)))
+        active = self._active_layers(u, j_lo, j_hi)
         tasks = self._plan_tasks(plan, active, (h, w))[0]
+        channels = [p.result() for p in pending][-1]
         acc = [np.zeros((h, w), dtype=np.float32) for _ in range(4)]  # sum T C (RGB), cov = sum T W (step 4)
         hidden = np.zeros((h, w), dtype=np.float32)  # sum of V_i over layers i <= j - S
         tl = self.tile
@@ -202,15 +220,20 @@ class FastRenderer:
         # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
         *acc_rgb, cov = acc
         weight = cv2.min(cov, 1.0)
-        fill = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in channels], weight, u)  # model.fill_encode
+        # a coverage within COVERAGE_SNAP of 1 is 1 (float32 rounding, not an uncovered pixel)
+        weight = cv2.max(weight, cv2.threshold(weight, 1.0 - COVERAGE_SNAP, 1.0, cv2.THRESH_BINARY)[1])
+        fill = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in channels], weight, u,
+                              pmap=self._map)  # model.fill_encode
         scale = cv2.divide(1.0, cv2.max(cov, 1.0))
         rest = cv2.subtract(1.0, weight)
         size = (2 * fill.shape[1], 2 * fill.shape[0])
-        out = []
-        for a, f in zip(acc_rgb, cv2.split(fill)):
-            f = np.ascontiguousarray(cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w])
-            out.append(cv2.add(cv2.multiply(a, scale), cv2.multiply(cv2.multiply(f, f), rest)))  # model.fill_decode
-        return cv2.merge(out)
+
+        def resolve(af) -> np.ndarray:
+            a, f = af
+            f = cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w]
+            return cv2.add(cv2.multiply(a, scale), cv2.multiply(cv2.multiply(f, f), rest))  # model.fill_decode
+
+        return cv2.merge(self._map(resolve, list(zip(acc_rgb, cv2.split(fill)))))
 
     def render_srgb(
         self,
@@ -280,6 +303,26 @@ class FastRenderer:
             total += cost
             tasks.extend(BlurTask(j, box, core, kernel, factor) for box, core in rects)
         return tasks, total
+
+    def _submit(self, fn, *args):
+        """A future of fn(*args): on a worker thread, or computed at once with one thread."""
+        if self.threads <= 1:
+            done: Future = Future()
+            done.set_result(fn(*args))
+            return done
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(self.threads, thread_name_prefix="rvr-blur")
+        return self._pool.submit(fn, *args)
+
+    def _map(self, fn, items: list) -> list:
+        """[fn(item) for item in items], spread over the worker threads."""
+        return [f.result() for f in [self._submit(fn, item) for item in items]]
+
+    def _stripes(self, h: int) -> list[slice]:
+        """Row stripes (even heights) that split an (h, ...) frame between the worker threads."""
+        n = max(min(self.threads, h // STRIPE_MIN_ROWS), 1)
+        edges = [min(2 * (-(-h * k // (2 * n))), h) for k in range(n + 1)]
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
     def _map_ordered(self, fn, items: list, ahead: int = 6):
         """Yield fn(item) in order, computing up to ``ahead`` items on worker threads."""
@@ -445,36 +488,75 @@ def blur_task(planes: list, u: np.ndarray, inv_norm: np.ndarray, task: BlurTask,
     (``inv_norm``: the reciprocal matte normaliser); sources are the pixels of the core (the task's
     other rectangles hold the rest); the kernel is already flipped for correlation; zero outside the
     frame. A reduced task (``factor`` > 1) is area-averaged onto the frame's grid of factor x factor
-    cells, blurred with the kernel of radius / factor and upsampled bilinearly.
+    cells, blurred with the kernel of radius / factor and upsampled bilinearly. The sources are
+    written straight into the blur's (zero) input buffers (:func:`blur_core_planes`).
     """
     y0, y1, x0, x1 = task.box
     cy0, cy1, cx0, cx1 = task.core
     alpha = cv2.multiply(_matte_cv(u[cy0:cy1, cx0:cx1], float(task.j)), inv_norm[cy0:cy1, cx0:cx1])
-    cores = [cv2.multiply(p[cy0:cy1, cx0:cx1], alpha) for p in planes] + [alpha]
     if isinstance(task.kernel, ZoneKernels):
+        cores = [cv2.multiply(p[cy0:cy1, cx0:cx1], alpha) for p in planes] + [alpha]
         return cv2.split(_blur_by_zones(cv2.merge(cores), task.kernel, task.box, task.core))
     f = task.factor
-    out = []
-    if f > 1:
-        gy0, gy1, gx0, gx1 = cy0 // f, -(-cy1 // f), cx0 // f, -(-cx1 // f)  # the core's cells
-        ly0, ly1, lx0, lx1 = y0 // f, -(-y1 // f), x0 // f, -(-x1 // f)  # the box's cells
-        aligned = (cy0, cx0, cy1, cx1) == (gy0 * f, gx0 * f, gy1 * f, gx1 * f)
-        for c in cores:
+    if f == 1:
+        def sources(bufs):  # the premultiplied radiance and the matte, into the core's views
+            cv2.copyTo(alpha, None, bufs[3])
+            for p, b in zip(planes, bufs):
+                cv2.multiply(p[cy0:cy1, cx0:cx1], alpha, dst=b)
+        return blur_core_planes(sources, 4, (cy0 - y0, cx0 - x0), (cy1 - cy0, cx1 - cx0), (y1 - y0, x1 - x0),
+                                task.kernel, spectra)
+    gy0, gy1, gx0, gx1 = cy0 // f, -(-cy1 // f), cx0 // f, -(-cx1 // f)  # the core's cells
+    ly0, ly1, lx0, lx1 = y0 // f, -(-y1 // f), x0 // f, -(-x1 // f)  # the box's cells
+    aligned = (cy0, cx0, cy1, cx1) == (gy0 * f, gx0 * f, gy1 * f, gx1 * f)
+    cells = (gx1 - gx0, gy1 - gy0)
+    cores = [cv2.multiply(p[cy0:cy1, cx0:cx1], alpha) for p in planes] + [alpha]
+
+    def reduced(bufs):  # the area means of the core's cells, into the core's views
+        for c, b in zip(cores, bufs):
             if not aligned:
-                buf = np.zeros(((gy1 - gy0) * f, (gx1 - gx0) * f), np.float32)
-                buf[cy0 - gy0 * f:cy1 - gy0 * f, cx0 - gx0 * f:cx1 - gx0 * f] = c
-                c = buf
-            small = cv2.resize(c, (gx1 - gx0, gy1 - gy0), interpolation=cv2.INTER_AREA)
-            small = cv2.copyMakeBorder(small, gy0 - ly0, ly1 - gy1, gx0 - lx0, lx1 - gx1, cv2.BORDER_CONSTANT,
-                                       value=0)
-            small = blur_planes(small, task.kernel, spectra)
-            up = cv2.resize(small, ((lx1 - lx0) * f, (ly1 - ly0) * f), interpolation=cv2.INTER_LINEAR)
-            out.append(up[:y1 - y0, :x1 - x0])
-        return out
-    for c in cores:
-        full = np.zeros((y1 - y0, x1 - x0), np.float32)
-        full[cy0 - y0:cy1 - y0, cx0 - x0:cx1 - x0] = c
-        out.append(blur_planes(full, task.kernel, spectra))
+                full = np.zeros(((gy1 - gy0) * f, (gx1 - gx0) * f), np.float32)
+                full[cy0 - gy0 * f:cy1 - gy0 * f, cx0 - gx0 * f:cx1 - gx0 * f] = c
+                c = full
+            cv2.resize(c, cells, dst=b, interpolation=cv2.INTER_AREA)
+    small = blur_core_planes(reduced, 4, (gy0 - ly0, gx0 - lx0), (gy1 - gy0, gx1 - gx0), (ly1 - ly0, lx1 - lx0),
+                             task.kernel, spectra)
+    size = ((lx1 - lx0) * f, (ly1 - ly0) * f)
+    return [cv2.resize(s, size, interpolation=cv2.INTER_LINEAR)[:y1 - y0, :x1 - x0] for s in small]
+
+
+def blur_core_planes(write, n: int, offset: tuple[int, int], core_shape: tuple[int, int],
+                     box_shape: tuple[int, int], kernel: np.ndarray, spectra: "SpectrumCache | None" = None) -> list:
+    """Blur ``n`` planes that are zero outside one core: ``write(views)`` fills the n (core h,
+    core w) float32 views with the sources, placed at ``offset`` (row, column) of a (box h, box w)
+    zero box; returns the n blurred (box h, box w) planes (``cv2.filter2D`` with BORDER_CONSTANT and
+    the flipped ``kernel``, :func:`blur_planes`' values).
+
+    The sources are written straight into the blur's input buffers. A DFT blur's period is the
+    core grown by the kernel's half width on one side and by the larger box margin on the other (at
+    least the box; the box itself where no side is clipped): the least that keeps the circular
+    convolution from wrapping a source's footprint back into the box."""
+    (oy, ox), (ch, cw), (h, w) = offset, core_shape, box_shape
+    side = kernel.shape[0]
+    half = side // 2
+    if side <= 1:  # a delta: the box is the core
+        bufs = [np.empty((ch, cw), np.float32) for _ in range(n)]
+        write(bufs)
+        if (ch, cw) == (h, w):
+            return bufs
+        return [cv2.copyMakeBorder(b, oy, h - oy - ch, ox, w - ox - cw, cv2.BORDER_CONSTANT, value=0) for b in bufs]
+    if spectra is None or side < DFT_FROM_SIDE or min(h, w) <= side:
+        bufs = [np.zeros((h, w), np.float32) for _ in range(n)]
+        write([b[oy:oy + ch, ox:ox + cw] for b in bufs])
+        return [cv2.filter2D(b, -1, kernel, borderType=cv2.BORDER_CONSTANT) for b in bufs]
+    hh = cv2.getOptimalDFTSize(max(h, ch + half + max(oy, h - oy - ch)))
+    ww = cv2.getOptimalDFTSize(max(w, cw + half + max(ox, w - ox - cw)))
+    spectrum = spectra.get(kernel, hh, ww)
+    bufs = [np.zeros((hh, ww), np.float32) for _ in range(n)]
+    write([b[oy:oy + ch, ox:ox + cw] for b in bufs])
+    out = []
+    for b in bufs:
+        spec = cv2.mulSpectrums(cv2.dft(b, nonzeroRows=oy + ch), spectrum, 0)
+        out.append(cv2.idft(spec, flags=cv2.DFT_SCALE | cv2.DFT_REAL_OUTPUT, nonzeroRows=h)[:h, :w])
     return out
 
 
@@ -586,7 +668,7 @@ def fill_cv(colour: np.ndarray, weight: np.ndarray, depth: np.ndarray) -> np.nda
     return cv2.multiply(f, f)  # model.fill_decode
 
 
-def fill_level1_cv(channels: list, weight: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def fill_level1_cv(channels: list, weight: np.ndarray, depth: np.ndarray, pmap=None) -> np.ndarray:
     """Level 1 (half resolution, (ceil(H/2), ceil(W/2), 3)) of the push-pull of
     :func:`.model.push_pull_fill`, in the colour domain given (the callers pass
     ``model.fill_encode`` of the radiance, upsample bilinearly 2x, crop to (H, W) and decode).
@@ -594,12 +676,13 @@ def fill_level1_cv(channels: list, weight: np.ndarray, depth: np.ndarray) -> np.
     channels: the three (H, W) float32 colour planes; weight, depth: (H, W) float32. Depths
     are handled as ``y = kappa * z`` (a depth factor is then one exp of ``min(y - y_ref +
     kappa * tolerance, 0)``). Levels with a side below PUSH_PULL_NUMPY_BELOW use the model's
-    numpy code.
+    numpy code. pmap: a ``map`` returning a list (the renderer's worker threads) for the first
+    step's per-plane work.
     """
     if min(weight.shape) < PUSH_PULL_NUMPY_BELOW:
         f, _ = push_pull_levels(cv2.merge(channels), weight, depth, down_to=1)
         return f.astype(np.float32)
-    c, w, y = _pull0_cv(channels, weight, cv2.multiply(depth, FILL_DEPTH_SHARPNESS))
+    c, w, y = _pull0_cv(channels, weight, cv2.multiply(depth, FILL_DEPTH_SHARPNESS), pmap or _list_map)
     levels = []
     while True:
         yv = y.copy()
@@ -649,8 +732,13 @@ def _pad_even_cv(arrays, h: int, wd: int, values):
     return [cv2.copyMakeBorder(x, value=v, **pad) for x, v in zip(arrays, values)]
 
 
-def _pull0_cv(channels: list, w: np.ndarray, y: np.ndarray):
-    """The first pull step, from separate colour planes (no interleaved copies)."""
+def _list_map(fn, items) -> list:
+    return [fn(x) for x in items]
+
+
+def _pull0_cv(channels: list, w: np.ndarray, y: np.ndarray, pmap=_list_map):
+    """The first pull step, from separate colour planes (no interleaved copies); ``pmap`` maps the
+    per-plane block means."""
     h, wd = w.shape
     yv = y
     if float(w.min()) <= 0.0:
@@ -662,8 +750,10 @@ def _pull0_cv(channels: list, w: np.ndarray, y: np.ndarray):
     e = cv2.multiply(w, _factor(y, _block_max_up(yv)))
     size = (wd // 2, h // 2)
     area = cv2.INTER_AREA  # an exact 2x reduction: the 2x2 block means
-    means = [cv2.resize(cv2.multiply(x, e), size, interpolation=area) for x in (*channels, y)]
-    se = cv2.resize(e, size, interpolation=area)
+    # the block means of x * e for the colour planes and the depth, and of e itself (None)
+    means = pmap(lambda x: cv2.resize(e if x is None else cv2.multiply(x, e), size, interpolation=area),
+                 [*channels, y, None])
+    se = means.pop()
     inv = cv2.divide(1.0, cv2.max(se, WEIGHT_EPS / 4))
     inv[se <= WEIGHT_EPS / 4] = 0.0
     c = cv2.merge([cv2.multiply(x, inv) for x in means[:3]])
