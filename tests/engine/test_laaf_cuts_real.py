@@ -13,10 +13,13 @@ Measured 2026-12-03 (conversation preset, docs/autofocus.md): look-ahead 0 pulls
 the new shot's subject on the cut frame at 7 of 7 cuts (6 before a cut target on a face could be
 replaced only by a region on a face: at cut 299 a step to the background 19 frames later was
 moved onto the cut), off-screen 0 changes, moved 0.00, share 0.84; causal 0, 7 of 7, 1 change,
-0.00, share 0.93. The bounds: no pull crosses a cut; focus is on the new shot's
-subject on the cut frame at (nearly) every cut; the off-screen voices move no focus; a random
-choice between the subject and the background would be on the speaker about half the time and
-on the new subject at a cut about half the cuts.
+0.00, share 0.93; 3.0 spurious changes a minute in both (the full-range face model lost the
+close-ups on 4 detection frames and audio-visual synchrony picked background blocks). With the
+short-range model where the full-range one finds no face: share 1.00 and 0 spurious changes in
+both modes, off-screen 0 changes. The bounds: no pull crosses a cut; focus is on the new shot's
+subject on the cut frame at (nearly) every cut; the off-screen voices move no focus; no target
+change away from a cut or a turn; a random choice between the subject and the background would
+be on the speaker about half the time and on the new subject at a cut about half the cuts.
 """
 from __future__ import annotations
 
@@ -88,6 +91,9 @@ def test_cuts_on_real_footage_through_eval_focus(edited, tmp_path):
         assert s[f"{key}.pulls_across_cuts"] == 0
         assert s[f"{key}.cuts_on_subject"] >= 6  # on the new shot's subject on the cut frame (7 of 7 measured)
         assert s[f"{key}.offscreen_changes"] <= 1 and s[f"{key}.offscreen_moved_share"] <= 0.2
-        assert s[f"{key}.speaking_share"] >= 0.75  # subject or background at random: ~0.5
+        # a close-up face the full-range model misses is found by the short-range one, so no
+        # background block wins the voice (before: share 0.84 / 0.93, 3.0 spurious changes a minute)
+        assert s[f"{key}.speaking_share"] >= 0.95  # subject or background at random: ~0.5
+        assert s[f"{key}.spurious_per_min"] <= 1.0
     focus = json.loads((out / "focus" / f"{KIND}.conversation.json").read_text())
     assert focus["cuts"] == json.loads(annotation.read_text())["cuts"]  # the detector finds every cut, no other
