@@ -14,7 +14,9 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 3. **Pair geometry.** Dense DIS flow both ways (:mod:`rvr_addon.temporal.flow`, cached per pair
    while both frames are in the window); the relative pose from flow correspondences sampled on
    a grid where the flow is forward-backward consistent (``cv2.findEssentialMat`` with RANSAC,
-   refined on its inliers, ``cv2.decomposeEssentialMat`` + cheirality). A pair whose dense
+   re-estimated on its inliers by LMedS unless that explains them worse (:func:`msac_score`:
+   LMedS can lock onto a dominant plane), ``cv2.decomposeEssentialMat`` + cheirality). The flow
+   is DIS refined down to the analysis size itself (:class:`PairFlow`, FLOW_FINEST_SCALE). A pair whose dense
    median parallax after de-rotation stays under MIN_DENSE_PARALLAX_PX is dropped, and so is one
    whose parallax does not dominate the flow its rotation makes (ROT_RATIO): a rolling shutter,
    a focal length or lens distortion off and the frames' timing all leave false parallax in
@@ -91,7 +93,7 @@ import cv2
 import numpy as np
 
 from .cues import CueMap, focal_px
-from ..temporal.flow import DISFlow, fb_error, flow_size, to_flow_gray
+from ..temporal.flow import PRESETS, dis_calc, fb_error, flow_size, to_flow_gray
 
 NAME = "parallax"
 MAX_CORNERS = 400
@@ -164,9 +166,36 @@ PROPAGATE_DECAY = 0.8
 """Confidence kept by a map carried one frame on (so old measurements fade)."""
 REPROJECT_TOL_PX = 2.0
 """px (analysis size) a carried point may land from the pixel whose flow fetched it."""
+FLOW_FINEST_SCALE = 0
+"""Finest pyramid level of the pairs' DIS flow (0 = the analysis size). The "medium" preset
+stops at level 1 and upsamples: flow errors along the epipolar line are depth errors, and on
+HoloLens office (ground-truth poses, 4 neighbours) the triangulated maps' error went
+0.339 -> 0.315 at level 0; the whole fused depth 0.46 -> 0.44, at about twice the flow's time."""
 ANGLE_MIN_PX, ANGLE_FULL_PX = 1.0, 3.0
 """Triangulation angle, as px of de-rotated parallax at analysis size, under which a pixel is
 not trusted at all / from which it is fully trusted."""
+
+
+class PairFlow:
+    """DIS optical flow of one OpenCV instance for the pairs (created once per run, reused;
+    deterministic): the ``preset`` ("ultrafast", "fast", "medium") refined down to pyramid level
+    ``finest_scale`` (None: the preset's own). Called as ``flow(a, b)`` on two gray uint8 frames
+    of one size, it returns f_ab (h, w, 2) float32 px (:mod:`rvr_addon.temporal.flow`'s
+    conventions)."""
+
+    def __init__(self, preset: str = "medium", finest_scale: int | None = FLOW_FINEST_SCALE) -> None:
+        if preset not in PRESETS:
+            raise ValueError(f"parallax: unknown DIS preset {preset!r}; choose one of {', '.join(PRESETS)}")
+        self._dis = cv2.DISOpticalFlow_create(PRESETS[preset])
+        if finest_scale is not None:
+            if int(finest_scale) < 0:
+                raise ValueError(f"parallax: flow_finest_scale must be >= 0 or None, got {finest_scale}")
+            self._dis.setFinestScale(int(finest_scale))
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        if a.shape != b.shape:
+            raise ValueError(f"PairFlow: frames differ in size, {a.shape} vs {b.shape}")
+        return dis_calc(self._dis, a, b)
 
 
 @dataclass
@@ -333,7 +362,11 @@ def pose_from_points(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, refine: bool
         if refine:
             sub = np.flatnonzero(inl)[::max(int(inl.sum()) // REFINE_SAMPLES, 1)]
             E2, _ = cv2.findEssentialMat(p1[sub], p2[sub], K, method=cv2.LMEDS, prob=0.99)
-            if E2 is not None and E2.shape == (3, 3):
+            # LMedS can lock onto a dominant plane (a small median, a large error elsewhere):
+            # the re-estimate is kept only if it explains all the RANSAC inliers at least as well
+            # (truncated squared Sampson distance, the MSAC score)
+            if E2 is not None and E2.shape == (3, 3) and (
+                    msac_score(E2, p1[inl], p2[inl], K, threshold_px) <= msac_score(E, p1[inl], p2[inl], K, threshold_px)):
                 E = E2
         R1, R2, t = cv2.decomposeEssentialMat(E)
     except cv2.error:
@@ -353,6 +386,26 @@ def pose_from_points(p1: np.ndarray, p2: np.ndarray, K: np.ndarray, refine: bool
         return None
     T = T / max(np.linalg.norm(T), 1e-12)
     return R, T, float(np.median(derotated_parallax(p1[inl], p2[inl], K, R))), float(inl.mean())
+
+
+def sampson_px(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(N,) Sampson distance (px, first-order geometric distance to the epipolar constraint of the
+    essential matrix E) of (N, 2) px correspondences p1 -> p2 under intrinsics K."""
+    a = _normalise(K, p1[:, 0], p1[:, 1]).astype(np.float64)
+    b = _normalise(K, p2[:, 0], p2[:, 1]).astype(np.float64)
+    Ea, Eb = E @ a, E.T @ b
+    num = np.abs(np.sum(b * Ea, 0))
+    den = np.sqrt(Ea[0] ** 2 + Ea[1] ** 2 + Eb[0] ** 2 + Eb[1] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = num / den * 0.5 * (K[0, 0] + K[1, 1])
+    return np.where(np.isfinite(d), d, np.inf)
+
+
+def msac_score(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray, threshold_px: float) -> float:
+    """Mean of min(d, threshold)^2 over the correspondences, d their Sampson distance (px^2):
+    lower explains them better (a far miss costs no more than the threshold)."""
+    d = np.minimum(sampson_px(E, p1, p2, K), threshold_px)
+    return float(np.mean(d * d))
 
 
 def _in_front(a: np.ndarray, b: np.ndarray, R: np.ndarray, T: np.ndarray) -> int:
@@ -547,12 +600,15 @@ class ParallaxEstimator:
     nearest that does is taken, else the one with the most); min_parallax_px: the homography
     residual (px) under which a pair counts as rotation only / a plane; preset: DIS preset;
     refine_focal: without K, pick the focal length from the clip's first frames
-    (:func:`refine_focal`) instead of keeping the 66 deg guess.
+    (:func:`refine_focal`) instead of keeping the 66 deg guess; flow_finest_scale: the finest
+    pyramid level DIS refines its flow to (0: the analysis size itself; None: the preset's own,
+    1 for "medium", half the analysis size; see :class:`PairFlow`).
     """
 
     def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
                  per_side: int = 1, target_parallax_px: float = 5.0, min_parallax_px: float = 0.3,
-                 preset: str = "medium", refine_focal: bool = True) -> None:
+                 preset: str = "medium", refine_focal: bool = True,
+                 flow_finest_scale: int | None = FLOW_FINEST_SCALE) -> None:
         if window < 1:
             raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
         self.analysis_long_side = int(analysis_long_side)
@@ -563,6 +619,7 @@ class ParallaxEstimator:
         self.min_parallax_px = float(min_parallax_px)
         self.preset = preset
         self.refine_focal = bool(refine_focal)
+        self.flow_finest_scale = flow_finest_scale
 
     # ---------------------------------------------------------------- public API
 
@@ -655,7 +712,7 @@ class _Run:
 
     def __init__(self, est: ParallaxEstimator) -> None:
         self.est = est
-        self.dis = DISFlow(est.preset)
+        self.dis = PairFlow(est.preset, est.flow_finest_scale)
         self.size: tuple[int, int] | None = None
         self.K: np.ndarray | None = None
         self.next_id = 0
