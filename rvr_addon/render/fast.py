@@ -560,11 +560,12 @@ def blur_core_planes(write, n: int, offset: tuple[int, int], core_shape: tuple[i
     return out
 
 
-DFT_FROM_SIDE = 15
+DFT_FROM_SIDE = 11
 """Kernels of at least this side are applied by a DFT of the box (:class:`SpectrumCache`), smaller
-ones by ``cv2.filter2D`` directly (measured: a DFT costs 6-10 ns a pixel and channel with the
-kernel's spectrum cached, about half of filter2D's own DFT, which recomputes it; the direct filter
-costs ~0.04 k^2 ns)."""
+ones by ``cv2.filter2D`` directly (measured: a DFT costs 5-10 ns a pixel and channel with the
+kernel's spectrum cached, about half of filter2D's own DFT, which recomputes it and which filter2D
+itself switches to from 11 x 11; the direct filter costs ~0.04 k^2 ns). 15 before: on the 1080p
+frames of ``bench/render_bench.py`` 11 takes 2-3 % less CPU (9 no less than 11)."""
 
 
 class SpectrumCache:
