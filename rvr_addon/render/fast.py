@@ -181,6 +181,8 @@ class FastRenderer:
         active = self._active_layers(u, j_lo, j_hi)
         tasks = self._plan_tasks(plan, active, (h, w))[0]
         channels = [p.result() for p in pending][-1]
+        # the fill's samples (model.fill_encode of the radiance) on a worker while the layers composite
+        encoded = self._submit(lambda: [cv2.sqrt(cv2.max(c, 0.0)) for c in channels])
         acc = [np.zeros((h, w), dtype=np.float32) for _ in range(4)]  # sum T C (RGB), cov = sum T W (step 4)
         hidden = np.zeros((h, w), dtype=np.float32)  # sum of V_i over layers i <= j - S
         tl = self.tile
@@ -222,8 +224,7 @@ class FastRenderer:
         weight = cv2.min(cov, 1.0)
         # a coverage within COVERAGE_SNAP of 1 is 1 (float32 rounding, not an uncovered pixel)
         weight = cv2.max(weight, cv2.threshold(weight, 1.0 - COVERAGE_SNAP, 1.0, cv2.THRESH_BINARY)[1])
-        fill = fill_level1_cv([cv2.sqrt(cv2.max(c, 0.0)) for c in channels], weight, u,
-                              pmap=self._map)  # model.fill_encode
+        fill = fill_level1_cv(encoded.result(), weight, u, pmap=self._map)
         scale = cv2.divide(1.0, cv2.max(cov, 1.0))
         rest = cv2.subtract(1.0, weight)
         size = (2 * fill.shape[1], 2 * fill.shape[0])
