@@ -236,3 +236,31 @@ def test_a_close_up_the_full_range_model_misses_is_found_by_the_short_range_one(
     full.dets = [Det(0.7, (0.1, 0.1, 0.2, 0.2))]
     assert [b for b, _ in faces.detect(rgb)] == [pytest.approx((20.0, 10.0, 40.0, 20.0))] and close.calls == 1
     faces._models = None  # nothing to close
+
+
+def test_no_background_block_speaks_for_a_face_the_detector_missed():
+    """Issue 23: on a detection frame that finds no face shortly after frames with a face in the
+    same shot, the face was missed (a close-up the model lost), so audio-visual synchrony, which
+    picked blocks of the wall there, is not asked; in a shot without faces it is, from the cut on
+    or a second after the last face."""
+    faces = FaceDetector(backend="haar", every=6)
+    gray = np.zeros((120, 200), np.uint8)
+    frame = AnalysisFrame(0, np.zeros((120, 200, 3), np.uint8), gray, None, 1.0, FPS)
+    for t in range(120):
+        frame.t = t
+        if t == 80:
+            faces.cut(80)
+        boxes = ([(40.0, 40.0, 30.0, 30.0)] if t < 30 else []) if t % 6 == 0 or t == 80 else None
+        faces.ingest(t, frame, boxes)
+    assert faces.faces_at(29) and not faces.faces_at(30)
+    assert faces.seen_before(31, 25) and faces.seen_before(54, 25) and not faces.seen_before(55, 25)
+    assert not faces.seen_before(81, 25)  # a new shot: the previous shot's faces do not count
+    env, voiced = voice(n=120, seed=2)
+    audio = AudioTrack(voiced, env, voiced.astype(np.float32), FPS)
+    det = SpeechDetector(faces, FPS, 120, audio=audio, mouth="motion")
+    asked = []
+    det._decide_by_synchrony = lambda t: asked.append(t) or (None, 0.0, None)
+    det._last = 119
+    for t in (40, 54, 60, 100):
+        det.decide(t)
+    assert det.sync_face_gap == 25 and asked == [60, 100]

@@ -22,6 +22,9 @@ class NoFaces:
     def faces_at(self, t):
         return []
 
+    def seen_before(self, t, frames):
+        return False
+
 
 @pytest.fixture(scope="module")
 def blobs():

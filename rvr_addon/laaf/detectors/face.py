@@ -169,12 +169,14 @@ class FaceDetector(FocusDetector):
         self._detections = 0
         self._frames_with_faces = 0
         self._cut_at: int | None = None
+        self._cuts: list[int] = []
 
     def cut(self, t: int) -> None:
         """A new shot from frame t: face tracks end (new ids after the cut) and frame t is
         detected afresh instead of holding the previous shot's boxes."""
         self._tracks = {}
         self._cut_at = t
+        self._cuts.append(t)
 
     def _associate(self, boxes: list[Box], t: int, fps: float) -> list[tuple[Box, float, str | None]]:
         out = []
@@ -238,6 +240,13 @@ class FaceDetector(FocusDetector):
     def faces_at(self, t: int) -> list[tuple[Box, float, str | None]]:
         """Face boxes with track ids on frame t (empty if none or forgotten)."""
         return self._at.get(t, [])
+
+    def seen_before(self, t: int, frames: int) -> bool:
+        """Whether a face was on one of the ``frames`` frames before t in t's shot (frames after
+        the last cut at or before t): a detection frame that finds none there is a miss (a
+        turned or blurred face), not a shot without faces."""
+        start = max([c for c in self._cuts if c <= t], default=0)
+        return any(self._at.get(k) for k in range(max(t - int(frames), start), t))
 
     def output(self, t: int) -> DetectorOutput:
         faces = self.faces_at(t)

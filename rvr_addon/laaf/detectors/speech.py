@@ -74,7 +74,9 @@ turned away): the speaker is localised without faces by audio-visual synchrony
 compensated frame difference whose energy correlates best with the change of the audio
 envelope, over the same kind of window (widened by ``sync_margin`` frames of the silence
 around the turn, which shows that the block was still while nobody spoke); it must reach
-``sync_min_corr``. The heat map is then a square of ``sync_box_frac`` of the frame width
+``sync_min_corr``. Not within ``sync_face_gap_s`` (1 s) after a frame of the same shot with a face:
+there the face detector missed a face (on the shot/reverse-shot composite MediaPipe's full-range
+model lost close-ups, and a 40 px block of the wall won the voice). The heat map is then a square of ``sync_box_frac`` of the frame width
 around that block. A speaker whose mouth is hidden (behind a leaf, off screen) leaves no
 synchrony and is not found: the preset keeps its focus. (An earlier grid-correlation attempt
 failed on textured, moving backgrounds because it had no camera-motion compensation and
@@ -183,6 +185,8 @@ class SpeechDetector(FocusDetector):
     sync_min_corr: smoothed block correlation the synchrony peak must reach (0..1).
     sync_margin: frames of silence around the voiced segment the synchrony window may use.
     sync_box_frac: side of the speaker's square, as a fraction of the frame width.
+    sync_face_gap_s: synchrony is not used within this many seconds after a frame with a face of
+    the same shot (the face detector missed a face there: no background block speaks for it).
     """
 
     name = "speech"
@@ -194,7 +198,8 @@ class SpeechDetector(FocusDetector):
                  max_lag_s: float = 0.0, mouth_rel_activity: float = 0.3, none_score: float = 0.15,
                  switch_cost: float = 8.0, voice_weight: float = 0.7, smooth_s: float = 0.5, pause_cost: float = 2.5,
                  onset_s: float = 0.2, commit_s: float = 0.5, voice_id_weight: float = 1.0,
-                 mesh_every: int = 1, motion_weight: float = 0.5, seg_margin: int = 2) -> None:
+                 mesh_every: int = 1, motion_weight: float = 0.5, seg_margin: int = 2,
+                 sync_face_gap_s: float = 1.0) -> None:
         if mouth not in MOUTH_MODES:
             raise ValueError(f"speech detector: mouth={mouth!r} is not one of {', '.join(MOUTH_MODES)}")
         self.faces = faces
@@ -227,6 +232,7 @@ class SpeechDetector(FocusDetector):
         self.sync_min_corr = sync_min_corr
         self.sync_margin = max(0, int(sync_margin))
         self.sync_box_frac = sync_box_frac
+        self.sync_face_gap = max(0, int(round(sync_face_gap_s * fps)))
         self.synchrony = SynchronyLocaliser(keep_frames=8 * self.radius + 4 * self.sync_margin + 8) if sync else None
         self.audio = audio
         if self.audio is None:
@@ -593,7 +599,8 @@ class SpeechDetector(FocusDetector):
         win = self._window(t) if self.available else None
         if win is not None:
             faces = self.faces.faces_at(t) if self.faces is not None else []
-            if not faces and self.synchrony is not None:
+            if not faces and self.synchrony is not None and not (
+                    self.faces is not None and self.faces.seen_before(t, self.sync_face_gap)):  # a missed face
                 result = self._decide_by_synchrony(t)
             if self._flushed or self.causal:
                 self._advance(t if self.causal else t + self.smooth)
