@@ -713,6 +713,7 @@ class _Run:
     def __init__(self, est: ParallaxEstimator) -> None:
         self.est = est
         self.dis = PairFlow(est.preset, est.flow_finest_scale)
+        self.dis_memory = PairFlow(est.preset, None)  # the memory's one flow a frame: the reprojection test checks it
         self.size: tuple[int, int] | None = None
         self.K: np.ndarray | None = None
         self.next_id = 0
@@ -1007,7 +1008,7 @@ class _Run:
                 p = self.pair(t, n)  # cached: flows both ways
                 f, fb = p.f_ab, p.fb_a
             else:  # one flow; the reprojection test below rejects what it gets wrong
-                f, fb = self.dis(t.gray, n.gray), None
+                f, fb = self.dis_memory(t.gray, n.gray), None
             mx, my = xs + f[..., 0], ys + f[..., 1]
             qs = cv2.remap(np.where(n.conf > 0, n.q, np.nan).astype(np.float32), mx, my, cv2.INTER_LINEAR,
                            borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan"))
