@@ -450,9 +450,12 @@ class AutofocusJob:
             log.debug("step at frame %d: focus moved on since; dropped", e)
             return
         p = self.settings.pull
-        # the shot's first target: a cut's, or the clip's initial focus (frame 0 is a shot's start too)
+        # the shot's first target: a cut's, or the clip's initial focus (frame 0 is a shot's start too),
+        # replaced by the subject found just after; a motion or saliency subject may be corrected again
+        # within the hold, a speaker's (a turn that happened) is final: the next speaker is a pull
         cut_tg = next((tg for tg in self.targets if tg.nft.t == first
-                       and (tg.nft.detail.get("cut") or tg.nft.detail.get("start"))), None)
+                       and (tg.nft.detail.get("cut") or tg.nft.detail.get("start"))
+                       and not (tg.nft.source == "speech" and "subject_from_frame" in tg.nft.detail)), None)
         if (cut_tg is not None and not self.causal and self.calm.hold_frames
                 and e - p.lead_frames - p.pull_frames < first + self.calm.hold_frames
                 and not any(first < tg.nft.t for tg in self.targets)):

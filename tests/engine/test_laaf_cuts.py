@@ -275,3 +275,22 @@ def test_lookahead_focuses_the_first_subject_on_the_first_frame(tmp_path):
     assert not la.nfts[0].detail.get("cut")  # frame 0 is no cut
     causal = _run(clip, causal=True)
     assert "subject_from_frame" not in causal.nfts[0].detail  # no hindsight in causal mode
+
+
+def test_the_first_speaker_keeps_the_first_focus_when_a_second_speaks_within_the_hold(tmp_path, monkeypatch):
+    """Look-ahead replaces the clip's first focus by the first speaker (frames 4-17); the second
+    speaker (frames 22-36), found within the minimum hold, is a pull after it, not a second
+    replacement that would erase the first turn (it once was: focus on the second face from frame 0)."""
+    from batch_synth import fake_faces, make_talking_clip
+    from rvr_addon.laaf.detectors import face, speech
+
+    clip, depth, audio = make_talking_clip(tmp_path)
+    monkeypatch.setattr(face.FaceBackend, "detect", fake_faces)
+    monkeypatch.setattr(speech, "analyse_audio", lambda samples, fps, n, **kw: audio)
+    la = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset="conversation",
+                                        face_backend="haar")).run(progress=False)
+    w = 200  # talking_blobs' frame width: head 0 left of the middle, head 1 right of it
+    first, *rest = la.nfts
+    assert first.t == 0 and first.detail.get("start") and first.detail.get("subject_from_frame") == 4
+    assert first.x < w / 2 and la.focus[4] == pytest.approx(la.focus[0], abs=0.05)
+    assert [n.t for n in rest] == [22] and rest[0].x > w / 2 and rest[0].source == "speech"
