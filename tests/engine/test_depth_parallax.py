@@ -409,3 +409,19 @@ def test_pose_from_points_recovers_a_known_pose():
         assert np.degrees(np.linalg.norm(cv2.Rodrigues(R_est.T @ R)[0])) < 0.01
         assert np.degrees(np.arccos(np.clip(T_est @ T / np.linalg.norm(T), -1, 1))) < 0.1
         assert inliers == 1.0 and parallax > 5.0
+
+
+TUM = REAL.parent / "tum_fr1_rpy_window"
+
+
+@pytest.mark.skipif(not TUM.is_dir(), reason="../shared/data/real_video_depth/tum_fr1_rpy_window absent")
+def test_real_tum_rotation_clip_hands_the_fusion_nothing():
+    """TUM fr1/rpy (2 cm of baseline against 7 degrees of rotation in 4 frames): its frames' maps
+    are noise even with the true poses; the clip's gate keeps them all out, the first frames too
+    (they used to reach the fusion with 0.93-0.98 against the network's 0.65-0.73)."""
+    from rvr_addon.depth.real_video import open_rgbd_clip
+
+    clip = open_rgbd_clip(TUM)
+    maps = list(ParallaxEstimator().maps(clip.rgb_frames(0, 16)))
+    assert len(maps) == 16
+    assert max(float((m.confidence > 0.5).mean()) for m in maps) == 0.0
