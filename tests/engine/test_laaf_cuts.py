@@ -196,22 +196,29 @@ def test_focus_file_says_per_frame_where_focus_is(two_shots, tmp_path):
     assert len(track.frames) == n
 
 
+def _still_then_moving(n: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """n frames (128x72) of a textured 20 px object at disparity 2 on a background at 5, still for
+    8 frames, then moving right 2 px a frame (what the detectors pick up only once it moves)."""
+    w, h = 128, 72
+    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
+    obj = texture(20, 20, 8)
+    frames, maps = [], []
+    for k in range(n):
+        x0 = 30 + max(0, k - 8) * 2
+        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
+        f[26:46, x0:x0 + 20] = obj
+        d[26:46, x0:x0 + 20] = 2.0
+        frames.append(f)
+        maps.append(d)
+    return frames, maps
+
+
 def test_lookahead_focuses_the_new_shots_subject_on_the_cut(tmp_path):
     """A subject already in the new shot that the detectors only pick up a few frames later
     (it starts moving at cut + 8) is focused on the cut frame itself (look-ahead), not pulled
     to after it."""
     fa, ma, _ = entering_square(n=CUT, enter=12)
-    w, h = 128, 72
-    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
-    obj = texture(20, 20, 8)
-    fb, mb = [], []
-    for k in range(40):
-        x0 = 30 + max(0, k - 8) * 2
-        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
-        f[26:46, x0:x0 + 20] = obj
-        d[26:46, x0:x0 + 20] = 2.0
-        fb.append(f)
-        mb.append(d)
+    fb, mb = _still_then_moving(40)
     clip = write_clip(tmp_path, fa + fb, ma + mb)
     la = _run(clip)
     assert la.cuts == [CUT] and la.focus[CUT - 1] == pytest.approx(0.0, abs=0.1)
@@ -257,17 +264,7 @@ def test_lookahead_focuses_the_first_subject_on_the_first_frame(tmp_path):
     """The clip's first frame starts a shot too: a subject there that the detectors pick up only
     a few frames later (it starts moving at frame 8) is the first focus itself in look-ahead
     mode (no pull to it at the start, no change of target); causal mode cannot see it coming."""
-    w, h = 128, 72
-    bg = (texture(h, w, 7) * 0.7 + 30).astype(np.uint8)
-    obj = texture(20, 20, 8)
-    frames, maps = [], []
-    for k in range(40):
-        x0 = 30 + max(0, k - 8) * 2
-        f, d = bg.copy(), np.full((h, w), 5.0, np.float32)
-        f[26:46, x0:x0 + 20] = obj
-        d[26:46, x0:x0 + 20] = 2.0
-        frames.append(f)
-        maps.append(d)
+    frames, maps = _still_then_moving(40)
     clip = write_clip(tmp_path, frames, maps)
     la = _run(clip)
     assert la.focus[0] == pytest.approx(2.0, abs=0.2) and np.allclose(la.focus[:20], la.focus[0], atol=0.1)
