@@ -1205,6 +1205,11 @@ def clip_gate(snrs: list[float]) -> float:
     trusted either. Gates what the cue hands to the fusion, not the scale chain or the memory."""
     if len(snrs) < CLIP_SNR_MIN_FRAMES:
         return 1.0
+    return _median_snr_gate(snrs)
+
+
+def _median_snr_gate(snrs: list[float]) -> float:
+    """0..1: the median of ``snrs`` (non-empty) through SNR_RANGE."""
     med = float(np.median(snrs))
     return float(np.clip((med - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0.0, 1.0))
 
@@ -1217,8 +1222,7 @@ def start_gate(snrs: list[float]) -> float:
         return clip_gate(snrs)
     if not snrs:
         return 1.0
-    med = float(np.median(snrs))
-    return float(np.clip((med - SNR_RANGE[0]) / (SNR_RANGE[1] - SNR_RANGE[0]), 0.0, 1.0))
+    return _median_snr_gate(snrs)
 
 
 def _gated(m: CueMap, gate: float) -> CueMap:
