@@ -42,12 +42,19 @@ speaking face's box; nobody (silence, off-screen speech, a held face) is an empt
 combination keeps its focus, never moving it onto a silent face. Measured on the composite
 clips and the interview (``rvr eval-focus --real``, docs/autofocus.md): on GRID + restaurant the
 spurious focus changes went from 8.1 to 0 per minute.
-A per-track audio-video lag can be learnt (``max_lag_s`` > 0: the lag within
-+-max_lag_s maximising the track's correlation over its voiced history; split-screen feeds can
-be delayed), off by default: measured with the mesh alone (1 s windows, frame by frame), it
-chose wrong lags (syllables repeat every ~5 frames) and lowered the share of frames attributed
-right on the interview-halves composite from 0.81 to 0.66 (the interview: 0.56 vs 0.57; the
-GRID + restaurant composite: 0.78 both).
+**A per-track audio-video lag** (lip-sync offset; ``max_lag_s``, 0.2 s: split-screen feeds are
+delayed each on its own, on the interview the guest's picture runs 4-5 frames ahead of his
+sound): per face track, every voiced mouth window's correlation curve over the lags in
++-max_lag (each window normalised on its own) where some lag reaches ``lag_window_corr`` is
+averaged; the curve's peak is the track's lag once ``lag_min_windows_s`` of such windows are in
+and it beats no lag by ``lag_margin``, else 0 (``lag_mode='curve'``). A feed's delay is one
+constant and piles up at one lag; a listener's chance correlations and repeating syllables
+scatter and average out. Learnt so (2026-12-03): the guest -4 or -5 frames on the interview,
+the interview-halves composite and the shot/reverse-shot composite, every other face 0; the
+interview-halves composite's share on the speaker 0.65 -> 0.81 (docs/autofocus.md). The
+mesh and the motion cues of the track are both read shifted by it. The earlier estimate
+(``lag_mode='sums'``: one Pearson over the track's whole voiced history) chose wrong lags,
+a listener's too (its mouth reaches a chance peak at the edge of the search).
 
 The mesh-read faces' evidence averages the opening's correlation with the motion cues' below
 (``motion_weight``): on the interview the mesh alone is right on 0.49 of the annotated voiced
@@ -174,10 +181,11 @@ class SpeechDetector(FocusDetector):
     min_corr: correlation (of 3-frame moving averages) at which the motion cues of a face the
     mesh does not read score like ``none_score`` (below: less than nobody).
     mouth: 'auto' (face mesh where mediapipe imports, else motion), 'mesh' (required), 'motion'.
-    mouth_window_s, mouth_min_activity, mouth_rel_activity (0: off), max_lag_s: the face-mesh
-    evidence; none_score, switch_cost, voice_weight, smooth_s, pause_cost (cost units: a frame
-    of evidence 1 is worth 1), onset_s, commit_s (seconds), voice_id_weight: the decision over
-    time (module docstring). mesh_every: read the mouths with the face mesh on every n-th frame (held in
+    mouth_window_s, mouth_min_activity, mouth_rel_activity (0: off), max_lag_s (0: no lag), lag_mode
+    ('curve' or 'sums'), lag_window_corr, lag_margin, lag_min_windows_s (seconds): the face-mesh
+    evidence and the per-track lag (module docstring); none_score, switch_cost, voice_weight,
+    smooth_s, pause_cost (cost units: a frame of evidence 1 is worth 1), onset_s, commit_s
+    (seconds), voice_id_weight: the decision over time (module docstring). mesh_every: read the mouths with the face mesh on every n-th frame (held in
     between: the mesh is the costly part). The motion cues (faces the mesh does not read) score
     their correlation less ``min_corr`` plus ``none_score``; a lone such face, its correlation
     plus ``none_score`` when positive.
@@ -195,11 +203,12 @@ class SpeechDetector(FocusDetector):
                  start_frame: int = 0, window_s: float = 1.0, causal: bool = False, min_corr: float = 0.25,
                  sync: bool = True, sync_min_corr: float = 0.3, sync_margin: int = 4, sync_box_frac: float = 0.1,
                  mouth: str = "auto", mouth_window_s: float = 1.0, mouth_min_activity: float = 0.02,
-                 max_lag_s: float = 0.0, mouth_rel_activity: float = 0.3, none_score: float = 0.15,
+                 max_lag_s: float = 0.2, mouth_rel_activity: float = 0.3, none_score: float = 0.15,
                  switch_cost: float = 8.0, voice_weight: float = 0.7, smooth_s: float = 0.5, pause_cost: float = 2.5,
                  onset_s: float = 0.2, commit_s: float = 0.5, voice_id_weight: float = 1.0,
                  mesh_every: int = 1, motion_weight: float = 0.5, seg_margin: int = 2,
-                 sync_face_gap_s: float = 1.0) -> None:
+                 sync_face_gap_s: float = 1.0, lag_mode: str = "curve", lag_window_corr: float = 0.4,
+                 lag_margin: float = 0.1, lag_min_windows_s: float = 1.0) -> None:
         if mouth not in MOUTH_MODES:
             raise ValueError(f"speech detector: mouth={mouth!r} is not one of {', '.join(MOUTH_MODES)}")
         self.faces = faces
@@ -211,6 +220,12 @@ class SpeechDetector(FocusDetector):
         self.mouth_min_activity = mouth_min_activity
         self.mouth_rel_activity = mouth_rel_activity
         self.max_lag = max(0, int(round(max_lag_s * fps)))
+        if lag_mode not in ("curve", "sums"):
+            raise ValueError(f"speech detector: lag_mode={lag_mode!r} is not 'curve' or 'sums'")
+        self.lag_mode = lag_mode
+        self.lag_window_corr = float(lag_window_corr)
+        self.lag_margin = float(lag_margin)
+        self.lag_min_windows_s = float(lag_min_windows_s)
         self.none_score = float(none_score)
         self.switch_cost = float(switch_cost)
         self.pause_cost = float(pause_cost)
@@ -250,6 +265,7 @@ class SpeechDetector(FocusDetector):
         self._mouth: dict[str, dict[int, float]] = {}
         self._open: dict[str, dict[int, float]] = {}  # track -> frame -> face-mesh mouth opening
         self._lag_sums: dict[str, np.ndarray] = {}  # track -> (lags, 6): n, sx, sy, sxx, syy, sxy
+        self._lag_curves: dict[str, list] = {}  # track -> [windows, sum of their correlation curves]
         self._mesh_decided: set[int] = set()
         # the decision chain: per scored frame, state (a track id, NOBODY) -> (score of the best
         # path ending in it, relative to the best; the state at the frame before on that path)
@@ -334,6 +350,7 @@ class SpeechDetector(FocusDetector):
                 if series and t - 1 in series:
                     series[t] = series[t - 1]
         self._add_lag_pairs(t)
+        self._add_lag_window(t)
         if self.synchrony is not None:
             self.synchrony.add(t, frame.gray.shape, energy)
         self._prev = frame
@@ -349,12 +366,49 @@ class SpeechDetector(FocusDetector):
             for k in [k for k in series if k < t - keep]:
                 del series[k]
 
+    def _add_lag_window(self, t: int) -> None:
+        """Per face track, the correlation curve of the mouth window centred on frame k = t -
+        max_lag - mouth_radius (all its shifted openings are in once frame t is; causal mode: the
+        window ending at t - max_lag), clipped to its voiced segment +- ``seg_margin``: Pearson of
+        the opening shifted by each lag in +-max_lag with the envelope. A window where some lag
+        reaches ``lag_window_corr`` (the mouth follows the voice there) is added to the track's
+        mean curve (:meth:`track_lag`)."""
+        if self.lag_mode != "curve" or self.max_lag <= 0:
+            return
+        a = self.audio
+        k = t - self.max_lag - (0 if self.causal else self.mouth_radius)
+        if a is None or k < 1 or k >= len(a.voiced) or not a.voiced[k]:
+            return
+        s, e = k, k
+        while s > 0 and a.voiced[s - 1]:
+            s -= 1
+        while e + 1 < len(a.voiced) and a.voiced[e + 1] and e + 1 <= k + self.mouth_radius:
+            e += 1
+        if self.causal:
+            lo, hi = max(k - 2 * self.mouth_radius, s - self.seg_margin, 1), k
+        else:
+            lo, hi = max(k - self.mouth_radius, s - self.seg_margin, 1), min(k + self.mouth_radius, e + self.seg_margin)
+        frames = np.arange(lo, min(hi, len(a.envelope) - 1) + 1)
+        if len(frames) < self.mouth_radius:  # a short segment: too few syllables to tell lags apart
+            return
+        env = a.envelope[frames].astype(np.float64)
+        lags = range(-self.max_lag, self.max_lag + 1)
+        for tid, series in self._open.items():
+            if not all(int(f) + lag in series for f in frames for lag in (lags[0], lags[-1])):
+                continue
+            curve = np.array([_pearson(np.array([series.get(int(f) + lag, np.nan) for f in frames]), env)
+                              for lag in lags])
+            if np.isfinite(curve).all() and curve.max() >= self.lag_window_corr:
+                acc = self._lag_curves.setdefault(tid, [0, np.zeros(len(lags))])
+                acc[0] += 1
+                acc[1] += curve
+
     def _add_lag_pairs(self, t: int) -> None:
         """Add to each track's lag sums the pairs (opening at k + lag, envelope at k) of voiced
         frame k = t - max_lag, for every lag in +-max_lag (all known once frame t is in; the
         envelope is read at k <= t only, so causal mode stays causal)."""
         a, k = self.audio, t - self.max_lag
-        if a is None or k < 0 or k >= len(a.voiced) or not a.voiced[k]:
+        if self.lag_mode != "sums" or a is None or k < 0 or k >= len(a.voiced) or not a.voiced[k]:
             return
         y = float(a.envelope[k])
         lags = range(-self.max_lag, self.max_lag + 1)
@@ -366,9 +420,21 @@ class SpeechDetector(FocusDetector):
                     sums[i] += (1.0, x, y, x * x, y * y, x * y)
 
     def track_lag(self, tid: str) -> int:
-        """The audio-video lag (frames) of face track ``tid``: the one whose opening, shifted by
-        it, correlates best with the envelope over the track's voiced history (0 until it has
-        two seconds of voiced frames)."""
+        """The audio-video lag (frames) of face track ``tid``, in +-max_lag (the opening at frame
+        k + lag goes with the sound at k). ``lag_mode`` 'curve': the peak of the track's mean
+        correlation curve over its windows where the mouth follows the voice (:meth:`_add_lag_window`:
+        each window normalised on its own, so the curve is the feed's lip-sync; a chance
+        correlation of a listener's mouth, or a syllable repeating, has no consistent lag and
+        averages out), once there are ``lag_min_windows_s`` seconds of such windows and the peak
+        beats no lag by ``lag_margin``; else 0. 'sums': the one whose opening, shifted by it,
+        correlates best with the envelope over the track's voiced history (0 until it has two seconds of voiced frames)."""
+        if self.lag_mode == "curve":
+            acc = self._lag_curves.get(tid)
+            if acc is None or acc[0] < self.lag_min_windows_s * self.fps:
+                return 0
+            curve = acc[1] / acc[0]
+            i = int(np.argmax(curve))
+            return i - self.max_lag if curve[i] - curve[self.max_lag] >= self.lag_margin else 0
         sums = self._lag_sums.get(tid)
         if sums is None or sums[self.max_lag, 0] < 2.0 * self.fps:
             return 0
@@ -618,14 +684,16 @@ class SpeechDetector(FocusDetector):
         return result
 
     def _motion_score(self, tid: str | None, frames: list[int], env: np.ndarray) -> float | None:
-        """The motion cues' correlation of a track over ``frames`` (``env``: their envelope):
+        """The motion cues' correlation of a track over ``frames`` (``env``: their envelope; the
+        cues shifted by the track's lag, :meth:`track_lag`):
         the best of mouth motion with the envelope or its change and darkness with the
         envelope (3-frame moving averages); None with fewer than 3 readings."""
         series = self._mouth.get(tid, {})
-        ks = [i for i, k in enumerate(frames) if k in series]
+        lag = self.track_lag(tid) if tid is not None else 0  # the same feed: the mesh's lag
+        ks = [i for i, k in enumerate(frames) if k + lag in series]
         if len(ks) < 3:
             return None
-        feats = np.array([series[frames[i]] for i in ks])
+        feats = np.array([series[frames[i] + lag] for i in ks])
         # motion ~ |d opening/dt| follows the envelope's changes; darkness ~ opening follows it
         d_env = np.abs(np.diff(env, prepend=env[0]))
         return max(_pearson(_smooth(feats[:, 0]), _smooth(env[ks])),
@@ -705,7 +773,10 @@ class SpeechDetector(FocusDetector):
         m = {"available": self.available, "s_per_frame": self._seconds / max(self._last + 1, 1),
              "speaker_frames": self._speaker_frames, "synchrony_frames": self._sync_frames,
              "mouth": "mesh" if self.mesh is not None else "motion", "mesh_frames": len(self._mesh_decided),
-             "track_lags_frames": {tid: self.track_lag(tid) for tid in sorted(self._lag_sums)}}
+             "track_lags_frames": {tid: self.track_lag(tid)
+                                   for tid in sorted(set(self._lag_sums) | set(self._lag_curves))},
+             "track_lag_curves": {tid: [round(float(v), 3) for v in acc[1] / max(acc[0], 1)] + [int(acc[0])]
+                                  for tid, acc in sorted(self._lag_curves.items())}}
         if self.audio is not None:
             m["voiced_frames"] = int(self.audio.voiced.sum())
             m["voiced_segments"] = [[int(a), int(b)] for a, b in self.audio.segments()]
