@@ -37,6 +37,10 @@ def add_parser(sub) -> None:
                    help="share of queries centred near an NFT (default 0.5)")
     p.add_argument("--tolerance", type=float, default=3.0, metavar="FRAMES",
                    help="NFT label window: label exp(-dt^2 / 2 tol^2) (default 3 frames)")
+    p.add_argument("--depth-augment", type=float, default=0.0, metavar="P",
+                   help="share of queries whose disparity is replaced by estimate-like (blurred, distorted, noisy), "
+                        "region-flat (2-3 levels) or flat depth, so the network works on every kind of depth it "
+                        "meets at inference (default 0: the training clips' exact disparity only)")
     p.add_argument("--size", default=f"{d.width}x{d.height}", metavar="WxH",
                    help=f"network input size, multiples of 8 (default {d.width}x{d.height})")
     p.add_argument("--gray", action="store_true", help="gray instead of RGB input")
@@ -75,6 +79,8 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
     except ValueError as ex:
         raise RvrError(f"--size/--f-t/--units/--sample-step: {ex}") from None
     set_torch_threads(args.threads)
+    if not 0.0 <= args.depth_augment <= 1.0:
+        raise RvrError(f"--depth-augment must be in [0, 1] (got {args.depth_augment})")
     if not 0.0 <= args.pos_fraction <= 1.0 or args.tolerance <= 0:
         raise RvrError(f"--pos-fraction must be in [0, 1] and --tolerance > 0 (got {args.pos_fraction}, "
                        f"{args.tolerance})")
@@ -83,7 +89,7 @@ def cmd_train_afnet(args: argparse.Namespace) -> int:
         lr=args.lr, batch=args.batch, weak_weight=args.weak_weight, w_map=args.w_map, w_nft=args.w_nft,
         pos_fraction=args.pos_fraction, tolerance=args.tolerance, checkpoint_every=args.checkpoint_every,
         seed=args.seed, resume=args.resume, model=config, init_from=args.init_from, stride=args.stride,
-        threshold=args.threshold)
+        threshold=args.threshold, depth_augment=args.depth_augment)
     trainer = AFNetTrainer(settings, progress=not args.quiet)
     print(f"training AF-Net ({trainer.model.parameter_count()} parameters, receptive field "
           f"{trainer.model.config.span} frames) on {trainer.report.summary()}", file=sys.stderr)

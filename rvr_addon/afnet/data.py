@@ -380,15 +380,64 @@ def nft_label(frame: int, nfts: list[int], tolerance: float) -> float:
     return float(np.exp(-0.5 * (d / tolerance) ** 2)) if d <= 4 * tolerance else 0.0
 
 
+DEPTH_KINDS = ("estimate", "regions", "flat")
+"""The characters of depth :func:`augment_disparity` draws (equally often)."""
+
+
+def augment_disparity(disp: np.ndarray, rng: np.random.Generator, kind: str | None = None) -> np.ndarray:
+    """The normalised disparity of a sample's frames as another kind of depth would give it.
+
+    disp: (F, 1, H, W) float32, the decoded disparity channel (:func:`.encoding.normalise_disparity`
+    units). kind (None: drawn): ``estimate`` (what `rvr estimate` gives: blurred by a Gaussian of
+    1-4 px at 128x72, a monotone distortion ``sign(d) |d|^g``, g in 0.6-1.5, noise of 0.03-0.15,
+    a global scale/offset, which the normalisation removes again), ``regions`` (one disparity
+    per region: the frames quantised to 2-3 levels, as a map of one value per panel or a
+    hand-painted map) or ``flat`` (a single value: 0 after normalisation). The same draw for every
+    frame of the sample (an estimate's character does not change from frame to frame); each
+    frame is normalised again as at inference and quantised to the byte code's steps.
+    """
+    import cv2
+
+    from .encoding import normalise_disparity
+
+    kind = kind if kind is not None else DEPTH_KINDS[int(rng.integers(len(DEPTH_KINDS)))]
+    if kind not in DEPTH_KINDS:
+        raise ValueError(f"depth kind {kind!r} is not one of {', '.join(DEPTH_KINDS)}")
+    if kind == "flat":
+        return np.zeros_like(disp)
+    out = np.empty_like(disp)
+    if kind == "estimate":
+        sigma = float(rng.uniform(1.0, 4.0))
+        gamma = float(np.exp(rng.uniform(np.log(0.6), np.log(1.5))))
+        noise = float(rng.uniform(0.03, 0.15))
+        scale, offset = float(rng.uniform(0.3, 3.0)), float(rng.uniform(-2.0, 2.0))
+        for f in range(disp.shape[0]):
+            d = cv2.GaussianBlur(disp[f, 0].astype(np.float32), (0, 0), sigma)
+            d = np.sign(d) * np.abs(d) ** gamma + rng.normal(0.0, noise, d.shape)
+            out[f, 0] = normalise_disparity(scale * d + offset)
+    else:  # regions
+        levels = int(rng.integers(2, 4))
+        for f in range(disp.shape[0]):
+            d = disp[f, 0]
+            edges = np.quantile(d, np.linspace(0, 1, levels + 1)[1:-1])
+            q = np.digitize(d, edges).astype(np.float32)
+            out[f, 0] = normalise_disparity(q)
+    return np.round(out * DISPARITY_CODE_SCALE) / DISPARITY_CODE_SCALE
+
+
 class TrainingSet:
     """Draws samples (module docstring) from the loaded clips with a numpy Generator.
 
     pos_fraction: share of samples centred near an NFT (class balance). weak_weight: loss
     weight of weak clips. tolerance: NFT tolerance window in frames. flip, jitter: augmentation.
+    depth_augment: share of samples whose disparity channel is replaced by another character of
+    depth the network meets at inference (:func:`augment_disparity`: estimate-like, region-flat,
+    flat); 0 keeps the stored disparity (the first weights' training).
     """
 
     def __init__(self, clips: list[ClipData], config: AFNetConfig, pos_fraction: float = 0.5,
-                 weak_weight: float = 0.3, tolerance: float = 3.0, flip: bool = True, jitter: float = 0.15) -> None:
+                 weak_weight: float = 0.3, tolerance: float = 3.0, flip: bool = True, jitter: float = 0.15,
+                 depth_augment: float = 0.0) -> None:
         if not clips:
             raise InputError("no AF-Net training clip")
         if not 0 <= pos_fraction <= 1 or weak_weight < 0 or tolerance <= 0:
@@ -401,6 +450,9 @@ class TrainingSet:
         self.tolerance = tolerance
         self.flip = flip
         self.jitter = jitter
+        if not 0.0 <= depth_augment <= 1.0:
+            raise InputError(f"depth_augment {depth_augment} must be in [0, 1]")
+        self.depth_augment = float(depth_augment)
         self.with_nfts = [i for i, c in enumerate(clips) if c.nfts]
         self.audio: list[np.ndarray] = []
         if config.audio:
@@ -434,7 +486,10 @@ class TrainingSet:
             img = np.clip(img * gain + bias, -0.5, 0.5)
         parts = [img]
         if cfg.disparity:
-            parts.append((x[:, n_img:] - 128.0) / DISPARITY_CODE_SCALE)
+            disp = (x[:, n_img:] - 128.0) / DISPARITY_CODE_SCALE
+            if self.depth_augment > 0 and rng.random() < self.depth_augment:
+                disp = augment_disparity(disp, rng)
+            parts.append(disp)
         x = np.concatenate(parts, axis=1)
         flip = self.flip and rng.random() < 0.5
         if flip:

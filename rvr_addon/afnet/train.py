@@ -80,6 +80,9 @@ class AFNetTrainSettings:
     it: queries at inference only, training does not use it)."""
     threshold: float | None = None
     """NFT probability threshold written into the weights' header for inference (None: none, 0.5)."""
+    depth_augment: float = 0.0
+    """Share of samples whose disparity is replaced by estimate-like, region-flat or flat depth
+    (:func:`.data.augment_disparity`; 0: the stored disparity only)."""
 
 
 def batch_loss(model: AFNet, samples: list[Sample], w_map: float = 1.0, w_nft: float = 1.0
@@ -151,7 +154,7 @@ class AFNetTrainer(TrainingRun):
         clips, self.report = load_training_clips(model_cfg, s.data, s.annotations, self.run_dir / "data_cache",
                                                  progress=progress)
         self.data = TrainingSet(clips, model_cfg, pos_fraction=s.pos_fraction, weak_weight=s.weak_weight,
-                                tolerance=s.tolerance)
+                                tolerance=s.tolerance, depth_augment=s.depth_augment)
 
         def build() -> AFNet:
             net = AFNet(model_cfg)
@@ -183,6 +186,7 @@ class AFNetTrainer(TrainingRun):
                 "annotations": [str(p) for p in s.annotations], "iterations": s.iterations, "lr": s.lr,
                 "batch": s.batch, "weak_weight": s.weak_weight, "w_map": s.w_map, "w_nft": s.w_nft,
                 "pos_fraction": s.pos_fraction, "tolerance_frames": s.tolerance, "seed": s.seed,
+                "depth_augment": s.depth_augment,
                 "model": self.model.config.to_dict(), "parameters": self.model.parameter_count(),
                 "init_from": self.init_record, "training_data": self.report.to_dict()}
 
@@ -195,7 +199,7 @@ def _initial_weights(path: Path, audio: int) -> tuple[AFNetConfig, dict, dict]:
     grown by the audio input when ``audio`` is asked and the weights lack it."""
     from .infer import load_afnet
 
-    model, header = load_afnet(path)
+    model, header = load_afnet(path, backend="torch")  # the state dict: never the ONNX export beside it
     old = model.config
     new = replace(old, audio=old.audio or audio)
     record = {"path": str(path), "iterations": header.get("iterations"), "wall_time_s": header.get("wall_time_s"),

@@ -12,8 +12,9 @@ from rvr_addon.afnet.annotations import (
     ANNOTATION_FORMAT, AnnotatedClip, Annotation, read_annotations, write_annotations,
 )
 from rvr_addon.afnet.data import (
-    TrainingSet, harness_targets, load_harness_clip, load_training_clips, nft_label,
+    DEPTH_KINDS, TrainingSet, augment_disparity, harness_targets, load_harness_clip, load_training_clips, nft_label,
 )
+from rvr_addon.afnet.encoding import DISPARITY_CODE_SCALE
 from rvr_addon.errors import InputError
 
 
@@ -96,3 +97,39 @@ def test_samples_labels_and_weights(tmp_path):
     assert any(s.label > 0.5 for s in samples) and any(s.label == 0 for s in samples)
     assert nft_label(12, [12], 2.0) == 1.0 and nft_label(14, [12], 2.0) == pytest.approx(np.exp(-0.5))
     assert nft_label(30, [12], 2.0) == 0.0 and nft_label(3, [], 2.0) == 0.0
+
+
+def test_depth_augmentation_gives_every_kind_of_depth_met_at_inference():
+    """Issue 23: AF-Net trained on harness depth only fired nothing on flat exact depth; the
+    augmentation shows it estimate-like, region-flat and flat maps, normalised as at inference."""
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:18, 0:32].astype(np.float32)
+    ramp = np.clip((xx - 16) / 8, -3, 3)
+    disp = np.repeat(ramp[None, None], 9, axis=0)  # (F, 1, H, W), normalised units
+    flat = augment_disparity(disp, rng, "flat")
+    assert flat.shape == disp.shape and not flat.any()
+    regions = augment_disparity(disp, rng, "regions")
+    assert 2 <= len(np.unique(regions[0])) <= 3 and np.array_equal(regions[0], regions[-1])
+    assert np.corrcoef(regions[0].ravel(), ramp.ravel())[0, 1] > 0.8  # still near = near
+    est = augment_disparity(disp, rng, "estimate")
+    assert np.corrcoef(est[0].ravel(), ramp.ravel())[0, 1] > 0.8 and not np.allclose(est[0], disp[0])
+    for a in (regions, est):  # on the byte code's steps, in its range
+        assert np.allclose(a * DISPARITY_CODE_SCALE, np.round(a * DISPARITY_CODE_SCALE), atol=1e-3)
+        assert np.abs(a).max() <= 3.0
+    assert set(DEPTH_KINDS) == {"estimate", "regions", "flat"}
+    with pytest.raises(ValueError):
+        augment_disparity(disp, rng, "sky")
+
+
+def test_training_set_replaces_the_disparity_of_a_share_of_samples(tmp_path):
+    cfg = tiny_config()
+    write_harness_clip(tmp_path / "ds" / "c1", 30, 12, 0)
+    clips, _ = load_training_clips(cfg, [tmp_path / "ds"])
+    n_img = 3 if cfg.rgb else 1
+    plain = TrainingSet(clips, cfg, depth_augment=0.0)
+    aug = TrainingSet(clips, cfg, depth_augment=1.0)
+    a = [plain.draw(np.random.default_rng(k)).x[:, n_img:] for k in range(12)]
+    b = [aug.draw(np.random.default_rng(k)).x[:, n_img:] for k in range(12)]
+    assert sum(not np.allclose(x, y) for x, y in zip(a, b)) >= 6
+    with pytest.raises(InputError):
+        TrainingSet(clips, cfg, depth_augment=1.5)
