@@ -53,6 +53,8 @@ from .losses import (
 )
 from .unet import DISPARITY_PERCENT, EstimatorConfig, EstimatorNet, clip_gate, disparity_to_px, grow_state_dict
 
+TRAIN_ONLY = {"all": None, "disparity-head": "grid_head."}
+"""``--train-only`` choices: the prefix of the parameters that learn (None: all of them)."""
 CHECKPOINT_FORMAT = "rvr-laaf-estimator-checkpoint/1"
 WEIGHTS_FORMAT = "rvr-laaf-estimator/1"
 log = logging.getLogger(__name__)
@@ -111,6 +113,10 @@ class TrainSettings:
     init_from: Path | None = None
     """A new run starts from these weights (estimator.pt or a checkpoint) instead of a random init;
     its architecture is theirs, with ``model.row_prior`` switched on if asked (zero-initialised)."""
+    train_only: str = "all"
+    """Which parameters learn: ``all``, or ``disparity-head`` (the grid head alone, the 1x1 conv from
+    the 1/8 decoder level to the bilateral grid, plus its row-prior column): every layer E depends on
+    stays frozen, so the HDR output is bit-identical to the starting weights' (``TRAIN_ONLY``)."""
 
 
 def sample_loss(model: EstimatorNet, sample: TrainSample, weights: LossWeights,
@@ -277,7 +283,14 @@ class Trainer(TrainingRun):
             return net
 
         self._start(build, checkpoint)
-        self.teacher = self._load_teacher()
+        if s.train_only not in TRAIN_ONLY:
+            raise InputError(f"train_only (--train-only) is one of {', '.join(TRAIN_ONLY)}, got {s.train_only!r}")
+        frozen = TRAIN_ONLY[s.train_only]
+        if frozen is not None:  # Adam skips parameters that never get a gradient
+            for name, p in self.model.named_parameters():
+                p.requires_grad_(name.startswith(frozen))
+        # the HDR teacher only matters when E can move
+        self.teacher = self._load_teacher() if frozen is None else None
 
     def _load_teacher(self) -> EstimatorNet | None:
         """The frozen net whose E real pictures keep (``hdr_teacher``, else ``init_from``)."""
@@ -328,7 +341,7 @@ class Trainer(TrainingRun):
             "scale_range": list(s.scale_range), "whole_frame": s.whole_frame, "gt_share": s.gt_share,
             "procedural_share": s.procedural_share, "degrade": s.degrade, "expose": s.expose, "seed": s.seed,
             "ignore_prints": s.ignore_prints, "real": [str(p) for p in s.real],
-            "real_exclude": list(s.real_exclude), "real_share": s.real_share,
+            "real_exclude": list(s.real_exclude), "real_share": s.real_share, "train_only": s.train_only,
             "hdr_teacher": str(s.hdr_teacher) if s.hdr_teacher else (str(s.init_from) if s.real and s.init_from else None),
             "vgg19": str(s.vgg19) if s.vgg19 else None,
             "loss_weights": asdict(s.weights), "model": self.model.config.to_dict(),
@@ -440,3 +453,29 @@ def plot_losses(log_path: Path, out: Path) -> None:
         twin.set_ylabel("correlation with ground truth", color="C0")
         twin.set_ylim(-1, 1)
     save_png(fig, out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m rvr_addon.estimate.train [--train-only all|disparity-head] RVR_TRAIN_ARGS...``:
+    ``rvr train`` with the choice of which parameters learn (:attr:`TrainSettings.train_only`;
+    ``rvr train`` itself trains them all)."""
+    import argparse
+    import functools
+    import sys
+
+    from .. import cli
+    from . import train as this  # the importable module, also when run as __main__
+
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--train-only", choices=tuple(TRAIN_ONLY), default="all")
+    known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
+    plain = this.TrainSettings
+    this.TrainSettings = functools.partial(plain, train_only=known.train_only)
+    try:
+        return cli.main(["train", *rest])
+    finally:
+        this.TrainSettings = plain
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

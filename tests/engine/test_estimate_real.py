@@ -148,3 +148,67 @@ def test_shared_real_depth_listing():
         q = read_inverse_depth(p)
         ok = np.isfinite(q)
         assert ok.mean() > 0.5 and (q[ok] > 0).all(), p.name
+
+
+def _tiny_start(tmp_path: Path) -> Path:
+    import torch
+
+    from rvr_addon.estimate.train import export_weights
+    from rvr_addon.estimate.unet import EstimatorConfig, EstimatorNet
+
+    torch.manual_seed(0)
+    start = tmp_path / "start.pt"
+    export_weights(EstimatorNet(EstimatorConfig(widths=(8, 16, 16, 16))), start, iterations=0, wall_time_s=0.0,
+                   training={}, inference_max_pixels=1200)
+    return start
+
+
+def test_train_only_disparity_head_leaves_e_and_the_trunk_alone(real_root: Path, tmp_path: Path):
+    """train_only="disparity-head": the grid head learns, every other parameter (E's path) stays."""
+    import torch
+
+    from rvr_addon.estimate.infer import load_estimator
+    from rvr_addon.estimate.train import Trainer, TrainSettings
+
+    start = _tiny_start(tmp_path)
+    trainer = Trainer(TrainSettings(run_dir=tmp_path / "run", real=[real_root], iterations=3, batch=2, crop=32,
+                                    init_from=start, checkpoint_every=10, lr=1e-2, train_only="disparity-head"))
+    assert trainer.teacher is None
+    while trainer.step():
+        pass
+    trainer.finish()
+    before = load_estimator(start).net.state_dict()
+    after = load_estimator(tmp_path / "run" / "estimator.pt").net.state_dict()
+    for name, value in after.items():
+        same = torch.equal(value, before[name])
+        assert same != name.startswith("grid_head."), name
+    with pytest.raises(InputError, match="train-only"):
+        Trainer(TrainSettings(run_dir=tmp_path / "run2", real=[real_root], init_from=start, train_only="trunk"))
+
+
+def test_head_fit_cv_and_export(real_root: Path, tmp_path: Path):
+    """python -m rvr_addon.estimate.head_fit: leave-scene-out rows per held-out view, exported weights
+    whose E is bit-identical to the start's and whose D differs."""
+    import json
+
+    import torch
+
+    from rvr_addon.estimate import head_fit
+    from rvr_addon.estimate.infer import load_estimator
+
+    start = _tiny_start(tmp_path)
+    out = tmp_path / "fit"
+    assert head_fit.main(["--real", str(real_root), "--init-from", str(start), "-o", str(out), "--cv", "3",
+                          "--iterations", "5", "--row-prior", "--lr", "1e-2"]) == 0
+    rep = json.loads((out / "head_fit.json").read_text())
+    assert {r["fold"] for r in rep["cv_rows"]} == {0, 1, 2}
+    assert len([r for r in rep["cv_rows"] if r["name"].startswith("middlebury")]) == 6
+    assert 0.0 <= rep["cv"]["better_than_ramp_share"] <= 1.0
+    old, new = load_estimator(start), load_estimator(out / "estimator.pt")
+    assert new.net.config.row_prior and new.header["inference_max_pixels"] == 1200
+    img = torch.rand(1, 3, 40, 56)
+    img[:, :, 5:15, 5:25] = 1.0  # clipped: E is non-zero there
+    with torch.no_grad():
+        a, b = old.net(img), new.net(img)
+    assert torch.equal(a.exponent, b.exponent) and float(a.exponent.max()) > 0
+    assert not torch.equal(a.disparity_rel, b.disparity_rel)
