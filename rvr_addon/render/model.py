@@ -83,8 +83,9 @@ OCCLUSION_DELAY = 2
 FILL_DEPTH_SHARPNESS = 2.0
 """kappa of step 5, per layer step: a sample more than FILL_DEPTH_TOLERANCE steps nearer than
 the farthest one around it weighs exp(-kappa * excess) as much (e^-2 per step)."""
-FILL_DEPTH_TOLERANCE = 1.0
-"""Depth difference in layer steps within which the fill treats samples as one background."""
+FILL_DEPTH_TOLERANCE = 2.0
+"""Depth difference in layer steps within which the fill treats samples as one background (the
+OCCLUSION_DELAY within which the compositing treats layers as one surface; was 1, see step 5)."""
 EXP_FLOOR = -60.0
 """Lower clamp of the fill's exponents (relative weights below e^-60 are treated as e^-60),
 which keeps every weight sum positive in float32."""

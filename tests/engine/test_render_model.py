@@ -182,7 +182,7 @@ def test_fill_keeps_a_constant_and_prefers_the_background():
     colour[:, :8] = 1.0  # left half bright, right half dark
     weight = np.ones((16, 16))
     weight[6:10, 6:10] = 0.05  # a poorly covered hole across the edge
-    far = np.where(np.arange(16) < 8, 3.0, 0.0)[None, :].repeat(16, 0)  # bright half 3 steps farther
+    far = np.where(np.arange(16) < 8, FILL_DEPTH_TOLERANCE + 2.0, 0.0)[None, :].repeat(16, 0)  # 2 steps beyond it
     near = np.where(np.arange(16) < 8, 0.5, 0.0)[None, :].repeat(16, 0)  # within the tolerance
     dark_side = np.s_[6:10, 8:10, 0]
     assert push_pull_fill(colour, weight, far)[dark_side].mean() > push_pull_fill(colour, weight, near)[dark_side].mean() + 0.2
