@@ -392,13 +392,21 @@ class SpeechDetector(FocusDetector):
         if len(frames) < self.mouth_radius:  # a short segment: too few syllables to tell lags apart
             return
         env = a.envelope[frames].astype(np.float64)
+        env = env - env.mean()
         lags = range(-self.max_lag, self.max_lag + 1)
+        first, last = int(frames[0]) - self.max_lag, int(frames[-1]) + self.max_lag
+        n = len(frames)
         for tid, series in self._open.items():
-            if not all(int(f) + lag in series for f in frames for lag in (lags[0], lags[-1])):
+            if first not in series or last not in series:
                 continue
-            curve = np.array([_pearson(np.array([series.get(int(f) + lag, np.nan) for f in frames]), env)
-                              for lag in lags])
-            if np.isfinite(curve).all() and curve.max() >= self.lag_window_corr:
+            row = np.array([series.get(f, np.nan) for f in range(first, last + 1)])
+            if not np.isfinite(row).all():
+                continue
+            shifted = np.lib.stride_tricks.sliding_window_view(row, n)  # (lags, frames): lag -max_lag first
+            x = shifted - shifted.mean(axis=1, keepdims=True)
+            den = np.sqrt((x * x).sum(axis=1) * (env * env).sum())
+            curve = np.where(den > 1e-12, (x @ env) / np.maximum(den, 1e-12), 0.0)  # Pearson per lag
+            if curve.max() >= self.lag_window_corr:
                 acc = self._lag_curves.setdefault(tid, [0, np.zeros(len(lags))])
                 acc[0] += 1
                 acc[1] += curve
