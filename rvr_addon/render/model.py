@@ -43,7 +43,10 @@ The model, for every renderer (fast tiles, torch, brute-force reference):
    surface no longer covers is no evidence of what lies behind it), in which, within each 2x2
    block and between levels, a sample more than FILL_DEPTH_TOLERANCE steps in front of the
    farthest one fades by ``exp(-FILL_DEPTH_SHARPNESS)`` per step (an occluder is not the
-   background it hides), weights are averaged (not saturated) up the pyramid, and the fill is
+   background it hides; the tolerance is OCCLUSION_DELAY = 2 steps, what the compositing treats
+   as one surface: with 1 step an estimated depth map's small far outliers, the HDR lights it puts
+   2-3 steps behind their surroundings, won every block up the pyramid and the fill, taken by the
+   1-20 % coverage deficits of a depth gradient, turned half of the frame white), weights are averaged (not saturated) up the pyramid, and the fill is
    the half-resolution level upsampled. The pyramid averages ``sqrt(L)`` and the fill is the
    square of the result (a power mean of order FILL_POWER = 1/2, :func:`fill_encode` /
    :func:`fill_decode`): the hidden background is most often the dark surface around a small
