@@ -64,12 +64,26 @@ def export_estimator(weights: str | Path) -> bytes:
 
     model = load_estimator(weights, backend="torch")
     net = model.net
-    if net.config.row_prior:
-        raise ValueError("exporting an estimator with row_prior is not supported (its row coordinate depends on the "
-                         "unpadded height); export weights without it")
     s = net.config.stride
     meta = {"rvr_graph": "estimator_trunk", "rvr_source_hash": model.model_hash,
             "rvr_header": json.dumps(model.header, sort_keys=True)}
+    if net.config.row_prior:
+        # the row coordinate depends on the unpadded height, which the padded graph never sees: the
+        # graph gets the grid head without its row column, and the column's weights (the grid gains
+        # head_gain * w_row[k] * row(y), the head being a 1x1 conv) go into the metadata, added in numpy
+        # (estimate.onnx_infer)
+        import copy
+        from dataclasses import replace
+
+        plain = copy.deepcopy(net)
+        plain.config = replace(net.config, row_prior=False)
+        weight = net.grid_head.weight.detach()
+        plain.grid_head = torch.nn.Conv2d(weight.shape[1] - 1, weight.shape[0], 1)
+        with torch.no_grad():
+            plain.grid_head.weight.copy_(weight[:, :-1])
+            plain.grid_head.bias.copy_(net.grid_head.bias.detach())
+        meta["rvr_row_weights"] = json.dumps([float(v) for v in weight[:, -1, 0, 0]])
+        net = plain
     return _export(_Trunk(net).eval(), (torch.zeros(1, 3, 2 * s, 3 * s),), ["srgb"], ["grid", "e_logits"],
                    {"srgb": {2: "height", 3: "width"}, "grid": {2: "gh", 3: "gw"}, "e_logits": {2: "eh", 3: "ew"}},
                    meta)

@@ -190,8 +190,6 @@ def _load(weights: Path, row_prior: bool):
 def main(argv: list[str] | None = None) -> int:
     from .infer import load_estimator, preferred_max_pixels
     from .real_data import find_real_pictures, scene_folds
-    from .train import export_weights
-
     ap = argparse.ArgumentParser(prog="python -m rvr_addon.estimate.head_fit", description=__doc__.split("\n\n")[0])
     ap.add_argument("--real", type=Path, required=True)
     ap.add_argument("--init-from", type=Path, default=Path(__file__).parent / "weights" / "estimator.pt")
@@ -199,6 +197,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cv", type=int, default=0, help="leave-scene-out folds to score (0: none)")
     ap.add_argument("--folds", default=None, help="only these folds, e.g. 0,1,2")
     ap.add_argument("--no-all", action="store_true", help="do not fit and export the all-scenes model")
+    ap.add_argument("--export-folds", action="store_true",
+                    help="with --cv: also write OUT/fold<k>/estimator.pt and OUT/weights_per_scene.json, for "
+                         "rvr eval-estimator --real-set DIR --weights-per-scene OUT/weights_per_scene.json")
     ap.add_argument("--row-prior", action="store_true")
     ap.add_argument("--iterations", type=int, default=600)
     ap.add_argument("--lr", type=float, default=1e-3)
@@ -226,11 +227,16 @@ def main(argv: list[str] | None = None) -> int:
     if a.cv:
         folds = scene_folds(pictures, a.cv)
         chosen = range(len(folds)) if a.folds is None else [int(k) for k in a.folds.split(",")]
-        rows = []
+        rows: list[dict] = []
+        per_scene: dict[str, str] = {}
         for k in chosen:
             held = set(folds[k])
             train = [v for n, v in prepared.items() if v[0].scene not in held]
             weight, bias = fit_head(net, train, fs)
+            if a.export_folds:
+                _export(net, weight, bias, a.output / f"fold{k}" / "estimator.pt", record, a, t0, len(train),
+                        max_pixels)
+                per_scene.update({s: str(a.output / f"fold{k}" / "estimator.pt") for s in held})
             for n, v in prepared.items():
                 if v[0].scene in held:
                     rows.append({"name": n, "scene": v[0].scene, "fold": k,
@@ -238,23 +244,37 @@ def main(argv: list[str] | None = None) -> int:
                                  "before": picture_error(net.grid_head.weight, net.grid_head.bias, v[0], cfg),
                                  "ramp_error": ramp_error(v[0])})
             print(f"fold {k}: {_summary([r for r in rows if r['fold'] == k])}", file=sys.stderr)
+        if a.export_folds:
+            (a.output / "weights_per_scene.json").write_text(json.dumps(per_scene, indent=1))
         result["cv_rows"] = rows
         result["cv"] = _summary(rows)
         result["cv_per_fold"] = {k: _summary([r for r in rows if r["fold"] == k]) for k in chosen}
         print(f"leave-scene-out: {result['cv']}", file=sys.stderr)
     if not a.no_all:
         weight, bias = fit_head(net, list(prepared.values()), fs)
-        with torch.no_grad():
-            net.grid_head.weight.copy_(weight)
-            net.grid_head.bias.copy_(bias)
-        training = {"head_fit": result["settings"], "init_from": record, "real_pictures": len(pictures),
-                    "note": "grid_head refitted on real pictures; every other layer (and so E) unchanged"}
-        export_weights(net, a.output / "estimator.pt", iterations=(record.get("iterations") or 0),
-                       wall_time_s=(load_estimator(a.init_from).header.get("wall_time_s") or 0.0)
-                       + time.perf_counter() - t0, training=training, inference_max_pixels=max_pixels)
+        _export(net, weight, bias, a.output / "estimator.pt", record, a, t0, len(pictures), max_pixels)
     result["wall_s"] = time.perf_counter() - t0
     (a.output / "head_fit.json").write_text(json.dumps(result, indent=1))
     return 0
+
+
+def _export(net, weight, bias, path: Path, record: dict, a, t0: float, n_pictures: int, max_pixels: int) -> None:
+    """Write the net with this grid head (a copy: ``net`` keeps the starting head)."""
+    import copy
+
+    from .infer import load_estimator
+    from .train import export_weights
+
+    out = copy.deepcopy(net)
+    with torch.no_grad():
+        out.grid_head.weight.copy_(weight)
+        out.grid_head.bias.copy_(bias)
+    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
+    training = {"head_fit": settings, "init_from": record, "real_pictures": n_pictures,
+                "note": "grid_head refitted on real pictures; every other layer (and so E) unchanged"}
+    export_weights(out, path, iterations=(record.get("iterations") or 0),
+                   wall_time_s=(load_estimator(a.init_from).header.get("wall_time_s") or 0.0)
+                   + time.perf_counter() - t0, training=training, inference_max_pixels=max_pixels)
 
 
 def _summary(rows: list[dict]) -> dict:

@@ -33,8 +33,16 @@ class OnnxEstimatorNet:
         self.max_disparity = float(config.get("max_disparity", 25.0))
         self.e_max = math.log(float(config.get("max_gain", 1000.0))) / K_HDR
         self.gate_lo, self.gate_hi = float(config.get("gate_lo", 0.9)), float(config.get("gate_hi", 0.98))
-        if config.get("row_prior"):
-            raise ValueError("an estimator with row_prior has no ONNX export; use torch")
+        self.row_weights = None
+        if config.get("row_prior"):  # the row column of the grid head, added here (rvr_addon.onnx_export)
+            meta = getattr(graph, "meta", {}) or {}
+            if "rvr_row_weights" not in meta:
+                raise ValueError("this ONNX export of an estimator with row_prior lacks rvr_row_weights; re-export it "
+                                 "with scripts/export_onnx.py, or use torch")
+            import json
+
+            self.row_weights = np.asarray(json.loads(meta["rvr_row_weights"]), np.float32) * float(
+                config.get("head_gain", 10.0))
 
     def __call__(self, srgb: np.ndarray, guide: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """srgb: (h, w, 3) float32 in [0, 1] (the network's view); guide: (H, W, 3) float32 sRGB of the
@@ -48,6 +56,10 @@ class OnnxEstimatorNet:
         x = np.pad(srgb, ((0, hp - h), (0, wp - w), (0, 0)), mode="edge") if (hp, wp) != (h, w) else srgb
         x = np.ascontiguousarray(x.transpose(2, 0, 1)[None], dtype=np.float32)
         grid, e_logits = self.graph.run({"srgb": x})
+        if self.row_weights is not None:  # unet._row_coordinate: -1 at the image's top edge, +1 at its bottom
+            hg = grid.shape[2]
+            rows = ((np.arange(hg, dtype=np.float32) + 0.5) / (hg * (h / hp)) * 2.0 - 1.0).astype(np.float32)
+            grid = grid + self.row_weights[None, :, None, None] * rows[None, None, :, None]
         m = self.max_disparity
         grid = (m * np.tanh(grid[0] / m) + LEAK_BOUND * grid[0]).astype(np.float32)
         d_rel = bilateral_slice(grid, luma(guide), (h / hp, w / wp))

@@ -140,3 +140,28 @@ def test_neither_runtime_names_the_fix(monkeypatch):
     assert "onnxruntime" in estimator_unavailable(SHIPPED_WEIGHTS)
     monkeypatch.undo()
     assert estimator_unavailable(SHIPPED_WEIGHTS) == "" and estimator_unavailable(SHIPPED_ONNX) == ""
+
+
+def test_row_prior_estimator_exports(tmp_path):
+    """Weights with the row prior export too: the row column of the grid head travels in the metadata
+    and is added in numpy (the graph sees only the padded frame); ONNX matches torch, odd sizes too."""
+    from rvr_addon.estimate.train import export_weights
+    from rvr_addon.estimate.unet import EstimatorConfig, EstimatorNet
+    from rvr_addon.onnx_export import export_estimator
+
+    torch.manual_seed(0)
+    net = EstimatorNet(EstimatorConfig(widths=(8, 16, 16, 16), row_prior=True))
+    with torch.no_grad():
+        net.grid_head.weight[:, -1] = torch.linspace(-0.2, 0.3, net.grid_head.weight.shape[0])[:, None, None]
+    pt = export_weights(net, tmp_path / "estimator.pt", iterations=0, wall_time_s=0.0, training={})
+    (tmp_path / "estimator.onnx").write_bytes(export_estimator(pt))
+    torch_model = load_estimator(pt, backend="torch")
+    onnx_model = load_estimator(tmp_path / "estimator.onnx", backend="onnx")
+    for h, w, max_pixels in ((37, 53, None), (100, 129, None), (121, 203, 5000)):
+        frame = _frame(h, w, h + w)
+        d_t, e_t = Estimator(torch_model, max_pixels)(frame)
+        d_o, e_o = Estimator(onnx_model, max_pixels)(frame)
+        assert float(np.abs(d_o - d_t).max()) < D_TOL_PX
+        assert float(np.abs(e_o - e_t).max()) < E_TOL
+    rows = np.abs(np.diff(d_t, axis=0)).mean()
+    assert rows > 0  # the row term is there
