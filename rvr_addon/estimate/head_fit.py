@@ -32,7 +32,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from .unet import DISPARITY_PERCENT, _bound
+from .unet import DISPARITY_PERCENT, bound_disparity
 
 
 @dataclass
@@ -114,7 +114,7 @@ def head_disparity(weight: torch.Tensor, bias: torch.Tensor, f: PictureFeatures,
 
     grid = F.conv2d(f.feats, weight, bias) * cfg.head_gain
     guide = f.train_guide if small and f.train_guide is not None else f.guide
-    return bilateral_slice(_bound(grid, cfg.max_disparity), guide, channels=1, extent=f.extent)
+    return bilateral_slice(bound_disparity(grid, cfg.max_disparity), guide, channels=1, extent=f.extent)
 
 
 def picture_error(weight, bias, f: PictureFeatures, cfg) -> float:

@@ -184,13 +184,13 @@ def _act(x: torch.Tensor) -> torch.Tensor:
 BOUND_LEAK = 0.01
 
 
-def _bound(g: torch.Tensor, m: float) -> torch.Tensor:
+def bound_disparity(g: torch.Tensor, m: float) -> torch.Tensor:
     """Soft bound of the disparity grid: M tanh(g / M) + 0.01 g."""
     return m * torch.tanh(g / m) + BOUND_LEAK * g
 
 
 def _inverse_bound(d: float, m: float) -> float:
-    """g with _bound(g, m) = d (Newton on a monotonic function)."""
+    """g with bound_disparity(g, m) = d (Newton on a monotonic function)."""
     g = d
     for _ in range(50):
         t = math.tanh(g / m)
@@ -313,7 +313,7 @@ class EstimatorNet(nn.Module):
         guide = srgb if guide_srgb is None else guide_srgb
         h, w = srgb.shape[-2:]
         grid, e_logits, (hp, wp) = self.trunk(srgb)
-        grid = _bound(grid, cfg.max_disparity)  # slicing interpolates, so the bound holds per pixel too
+        grid = bound_disparity(grid, cfg.max_disparity)  # slicing interpolates, so the bound holds per pixel too
         d_rel = bilateral_slice(grid, luma(guide), channels=1, extent=(h / hp, w / wp))
         e = torch.sigmoid(e_logits) * cfg.e_max
         e = F.interpolate(e, size=(hp, wp), mode="bilinear", align_corners=False)[..., :h, :w]
