@@ -258,6 +258,9 @@ def add_train_parser(sub) -> None:
                    help="give the disparity head the row coordinate (lets the network learn that the floor is "
                         "nearer toward the bottom of the frame); with --init-from it is added, zero-initialised, "
                         "to weights without it")
+    p.add_argument("--train-only", choices=("all", "disparity-head"), default="all",
+                   help="which parameters learn: all (default), or the disparity head alone (the 1x1 conv to the "
+                        "bilateral grid and its row column): the HDR output E stays bit-identical to --init-from's")
     p.add_argument("--ignore-prints", action="store_true",
                    help="no disparity supervision on the harness's photo prints (billboards, poster panels: "
                         "photographs of real scenes on flat boards), which teach that a photographed scene is flat")
@@ -311,7 +314,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         procedural_share=args.procedural_share, degrade=args.degrade, expose=args.expose,
         inference_max_pixels=args.inference_max_pixels, init_from=args.init_from, ignore_prints=args.ignore_prints,
         model=EstimatorConfig(row_prior=args.row_prior), real=args.real, real_exclude=tuple(args.real_exclude),
-        real_share=args.real_share, hdr_teacher=args.hdr_teacher, grad_clip=args.grad_clip)
+        real_share=args.real_share, hdr_teacher=args.hdr_teacher, grad_clip=args.grad_clip,
+        train_only=args.train_only)
     trainer = Trainer(settings, progress=not args.quiet)
     print(f"training on {trainer.data.summary()}; {trainer.report.summary()}", file=sys.stderr)
     run_training("train", trainer, args.output, args.quiet)

@@ -8,7 +8,7 @@
 # Usage: scripts/real_depth_cv.sh OUT [ITERATIONS]     (about 10 min a fold on 2 cores)
 # Environment: THREADS (torch threads, 2), START (weights to fine-tune), REAL (the data),
 #   EXTRA (more training flags, e.g. "--row-prior --lr 3e-4"), TRAIN_ONLY (all | disparity-head:
-#   the grid head alone learns, E stays bit-identical; via python -m rvr_addon.estimate.train),
+#   the grid head alone learns, E stays bit-identical; via rvr train --train-only),
 #   FOLDS (which fold models to train and score, e.g. "0 1 2"; default all five; a subset scores
 #   only those folds' scenes), ALL (0: skip the all-scenes model and Motorcycle).
 set -euo pipefail
@@ -23,7 +23,7 @@ FLAGS=(--iterations "$ITER" --batch 4 --crop 160 --min-scale 0.45 --whole-frame 
 read -r -a EXTRA_FLAGS <<< "${EXTRA:-}"
 FLAGS+=("${EXTRA_FLAGS[@]}")
 TRAIN=("$RVR" train)
-[ "${TRAIN_ONLY:-all}" = all ] || TRAIN=(.venv/bin/python -m rvr_addon.estimate.train --train-only "$TRAIN_ONLY")
+[ "${TRAIN_ONLY:-all}" = all ] || TRAIN=("$RVR" train --train-only "$TRAIN_ONLY")
 FOLDS=${FOLDS:-0 1 2 3 4}
 mkdir -p "$OUT"
 # the folds: scenes round robin over their sorted names (rvr_addon.estimate.real_data.scene_folds)

@@ -454,28 +454,3 @@ def plot_losses(log_path: Path, out: Path) -> None:
         twin.set_ylim(-1, 1)
     save_png(fig, out)
 
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m rvr_addon.estimate.train [--train-only all|disparity-head] RVR_TRAIN_ARGS...``:
-    ``rvr train`` with the choice of which parameters learn (:attr:`TrainSettings.train_only`;
-    ``rvr train`` itself trains them all)."""
-    import argparse
-    import functools
-    import sys
-
-    from .. import cli
-    from . import train as this  # the importable module, also when run as __main__
-
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--train-only", choices=tuple(TRAIN_ONLY), default="all")
-    known, rest = pre.parse_known_args(sys.argv[1:] if argv is None else argv)
-    plain = this.TrainSettings
-    this.TrainSettings = functools.partial(plain, train_only=known.train_only)
-    try:
-        return cli.main(["train", *rest])
-    finally:
-        this.TrainSettings = plain
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
