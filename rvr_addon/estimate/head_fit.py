@@ -50,8 +50,10 @@ class PictureFeatures:
     train_target: torch.Tensor | None = None
 
 
-def _features(net, rgb: np.ndarray, max_pixels: int) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float]]:
-    """(grid-head input, full-size luma, extent) of a frame, as :class:`.infer.Estimator` runs it."""
+def _features(net, rgb: np.ndarray, max_pixels: int
+              ) -> tuple[torch.Tensor, torch.Tensor, tuple[float, float], tuple[int, int]]:
+    """(grid-head input, full-size luma, extent, (w, h) of the trunk's input) of a frame, as
+    :class:`.infer.Estimator` runs it."""
     import cv2
 
     from ..color import image_to_linear, linear_to_srgb, to_float01
@@ -177,10 +179,10 @@ def fit_head(net, train: list[list[PictureFeatures]], fs: FitSettings) -> tuple[
 
 
 def _load(weights: Path, row_prior: bool):
-    from .train import _initial_weights
+    from .train import initial_weights
     from .unet import EstimatorNet
 
-    cfg, state, record = _initial_weights(weights, row_prior)
+    cfg, state, record = initial_weights(weights, row_prior)
     net = EstimatorNet(cfg)
     net.load_state_dict(state)
     net.eval()
@@ -215,7 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(a.threads)
     t0 = time.perf_counter()
     net, record = _load(a.init_from, a.row_prior)
-    max_pixels = preferred_max_pixels(load_estimator(a.init_from))
+    start = load_estimator(a.init_from)
+    max_pixels = preferred_max_pixels(start)
+    start_wall_s = float(start.header.get("wall_time_s") or 0.0)
     pictures = find_real_pictures(a.real)
     scales = tuple(float(s) for s in a.scales.split(","))
     prepared = prepare(net, pictures, max_pixels, scales, not a.no_flips, progress=True)
@@ -235,7 +239,7 @@ def main(argv: list[str] | None = None) -> int:
             weight, bias = fit_head(net, train, fs)
             if a.export_folds:
                 _export(net, weight, bias, a.output / f"fold{k}" / "estimator.pt", record, a, t0, len(train),
-                        max_pixels)
+                        max_pixels, start_wall_s)
                 per_scene.update({s: str(a.output / f"fold{k}" / "estimator.pt") for s in held})
             for n, v in prepared.items():
                 if v[0].scene in held:
@@ -252,17 +256,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"leave-scene-out: {result['cv']}", file=sys.stderr)
     if not a.no_all:
         weight, bias = fit_head(net, list(prepared.values()), fs)
-        _export(net, weight, bias, a.output / "estimator.pt", record, a, t0, len(pictures), max_pixels)
+        _export(net, weight, bias, a.output / "estimator.pt", record, a, t0, len(pictures), max_pixels, start_wall_s)
     result["wall_s"] = time.perf_counter() - t0
     (a.output / "head_fit.json").write_text(json.dumps(result, indent=1))
     return 0
 
 
-def _export(net, weight, bias, path: Path, record: dict, a, t0: float, n_pictures: int, max_pixels: int) -> None:
-    """Write the net with this grid head (a copy: ``net`` keeps the starting head)."""
+def _export(net, weight, bias, path: Path, record: dict, a, t0: float, n_pictures: int, max_pixels: int,
+            start_wall_s: float) -> None:
+    """Write the net with this grid head (a copy: ``net`` keeps the starting head); its wall time is
+    the starting weights' ``start_wall_s`` plus this run's so far."""
     import copy
 
-    from .infer import load_estimator
     from .train import export_weights
 
     out = copy.deepcopy(net)
@@ -273,8 +278,8 @@ def _export(net, weight, bias, path: Path, record: dict, a, t0: float, n_picture
     training = {"head_fit": settings, "init_from": record, "real_pictures": n_pictures,
                 "note": "grid_head refitted on real pictures; every other layer (and so E) unchanged"}
     export_weights(out, path, iterations=(record.get("iterations") or 0),
-                   wall_time_s=(load_estimator(a.init_from).header.get("wall_time_s") or 0.0)
-                   + time.perf_counter() - t0, training=training, inference_max_pixels=max_pixels)
+                   wall_time_s=start_wall_s + time.perf_counter() - t0, training=training,
+                   inference_max_pixels=max_pixels)
 
 
 def _summary(rows: list[dict]) -> dict:

@@ -274,7 +274,7 @@ class Trainer(TrainingRun):
             model_cfg = EstimatorConfig.from_dict(json.loads(checkpoint["model_config"]))
             self.init_record = previous_init_record(self.run_dir / "run.json")
         elif s.init_from is not None:
-            model_cfg, start_state, self.init_record = _initial_weights(Path(s.init_from), s.model.row_prior)
+            model_cfg, start_state, self.init_record = initial_weights(Path(s.init_from), s.model.row_prior)
 
         def build() -> EstimatorNet:
             net = EstimatorNet(model_cfg)
@@ -354,7 +354,7 @@ class Trainer(TrainingRun):
                               training=training, inference_max_pixels=self.settings.inference_max_pixels)
 
 
-def _initial_weights(path: Path, row_prior: bool) -> tuple[EstimatorConfig, dict, dict]:
+def initial_weights(path: Path, row_prior: bool) -> tuple[EstimatorConfig, dict, dict]:
     """(config, state dict, record for run.json) of a new run started from the weights in ``path``
     (``--init-from``), grown by the row prior when ``row_prior`` is asked and the weights lack it."""
     from .infer import load_estimator
