@@ -186,6 +186,18 @@ def test_train_only_disparity_head_leaves_e_and_the_trunk_alone(real_root: Path,
         Trainer(TrainSettings(run_dir=tmp_path / "run2", real=[real_root], init_from=start, train_only="trunk"))
 
 
+def test_cli_train_only_choices_are_the_trainers():
+    """`rvr train --train-only` (the torch-free CLI spells its choices out) offers exactly train.TRAIN_ONLY."""
+    from rvr_addon.cli import build_parser
+    from rvr_addon.estimate.train import TRAIN_ONLY
+
+    parser = build_parser()
+    train = next(a for a in parser._subparsers._group_actions[0].choices["train"]._actions
+                 if a.dest == "train_only")
+    assert set(train.choices) == set(TRAIN_ONLY)
+    assert train.default in TRAIN_ONLY
+
+
 def test_head_fit_cv_and_export(real_root: Path, tmp_path: Path):
     """python -m rvr_addon.estimate.head_fit: leave-scene-out rows per held-out view, exported weights
     whose E is bit-identical to the start's and whose D differs."""
