@@ -84,17 +84,19 @@ class KillOnce(WorkerPlugin):
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def make_talking_clip(folder: Path, frames: int = 40, turns=((4, 17, 0), (22, 36, 1))) -> tuple[Path, Path, object]:
+def make_talking_clip(folder: Path, frames: int = 40, turns=((4, 17, 0), (22, 36, 1)),
+                      pan: float = 1.0) -> tuple[Path, Path, object]:
     """Two textured heads whose mouths open with their own turns (``laaf_synth.talking_blobs``),
     as an H.264 MP4 with an audio track (a quiet tone: its voice activity is given to the test
-    separately), one disparity ramp for all frames; returns (clip, depth map, AudioTrack)."""
+    separately), one disparity ramp for all frames; pan: the camera's px/frame (0: still heads
+    where ``fake_faces`` puts their boxes, for clips longer than 40 frames); returns (clip, depth map, AudioTrack)."""
     import imageio_ffmpeg
 
     from laaf_synth import talking_blobs
     from rvr_addon.laaf.audio import AudioTrack
 
     fps = 25.0
-    rgb, env, voiced, _ = talking_blobs(n=frames, turns=turns, fps=fps)
+    rgb, env, voiced, _ = talking_blobs(n=frames, turns=turns, fps=fps, pan=pan)
     h, w = rgb[0].shape[:2]
     folder.mkdir(parents=True, exist_ok=True)
     clip = folder / "talk.mp4"

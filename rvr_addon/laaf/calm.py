@@ -7,7 +7,9 @@
   ``min_step * (1 + 1.5 calm)`` disparity units (the step detector's threshold);
 - **minimum hold**: a new target is not taken within ``2.0 calm`` s of the previous one on
   the same shot; it is deferred to the end of the hold and taken only if the scene still
-  asks for it then;
+  asks for it then (not a change of speaker made by the speech detector's decision chain,
+  whose own cost of a change of face is its hysteresis: a turn shorter than the hold is
+  answered at its start, ``lookahead``);
 - **cost of a change**: a step is taken only if its new level persists: measured within
   tolerance on >= ``PERSIST_SHARE`` of the ``1.2 calm`` s after it, as far as the look-ahead
   window sees before the pull must start (causal mode: not checked, as waiting for it would

@@ -151,11 +151,16 @@ def bilateral_1d(values: np.ndarray, sigma_t: float = 1.5, sigma_r: float = 0.4,
 
 @dataclass
 class Step:
-    """A discontinuity: frame e (first frame of the new level), levels before/after."""
+    """A discontinuity: frame e (first frame of the new level), levels before/after. speaker:
+    the face track a change of speaker goes to, where the speech detector's decision chain made
+    it (``lookahead``: a turn step), else None. region_frame: the frame whose region is the new
+    subject, where that is not e..e+3 (a turn step: the frame the chain named the speaker)."""
 
     frame: int
     before: float
     after: float
+    speaker: str | None = None
+    region_frame: int | None = None
 
 
 class StepDetector:

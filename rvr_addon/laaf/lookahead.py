@@ -31,6 +31,14 @@ focus signal next to a cut are the cut itself and make no NFT, and no pull cross
 step threshold, defers a step within the minimum hold of the previous target, takes a step
 only if its new level persists, and puts a deadband on following a subject.
 
+Changes of speaker (issue 23): the speech detector's decision chain has its own cost of a change
+of face, so a step to a new speaker it names is not held back by the minimum hold; and in
+look-ahead mode such a change is a target at the chain's *turn start* (``SpeechDetector.turn_start``:
+the first voiced frame the new face speaks on the chain's best path, which uses the evidence after
+it, typically the voice onset), proposed on the frame the chain first names the speaker instead of
+after the step detector's delay (``_turn_step``), so the pull can land before the voice; the step
+the step detector finds later to the same speaker is dropped.
+
 Manual NFTs (``nfts``/``targets``) are tracked from their frame (forward to the next NFT,
 backward over the pull before it); with a preset as well, automatic NFTs closer than
 ``pull_frames`` to a manual one are dropped (the user wins).
@@ -53,7 +61,8 @@ from ..temporal.cuts import CutDetector
 from .analysis import (FrameAnalyser, FrameMeasurement, build_detectors, check_frame_size, measured_names, open_clip,
                        shrink)
 from .calm import DEFAULT_CALM, calm_settings, check_calm, deadband, persists
-from .combine import DEFAULT_PRESET, PRESETS, PRIMARY, Region, StepDetector, intersect, majority_region, region_level
+from .combine import (DEFAULT_PRESET, PRESETS, PRIMARY, Region, Step, StepDetector, intersect, majority_region,
+                      region_level)
 from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
 from .focus_reading import read_focus
 from .keyframes import Key, keyframes
@@ -385,12 +394,15 @@ class AutofocusJob:
                 mine = [tg for tg in self.targets if tg.nft.t == m]
                 level = float(mine[0].level[m]) if mine else level
         self._timings["combine_s"] += time.perf_counter() - t0
+        turn = self._turn_step(m, region, level) if self.learned is None else None
         steps = self.step_detector.push(level)
         if self.learned is not None:
             for cand in self.learned.take_nfts():
                 if not self._near_cut(cand[0]):
                     self._commit_learned(cand, ingest)
         else:
+            if turn is not None:
+                self._propose(turn)
             for st in steps:
                 self._propose(st)
             self._resolve(m, ingest)
@@ -408,6 +420,62 @@ class AutofocusJob:
         ts = [tg.nft.t for tg in self.targets if first < tg.nft.t <= e]
         return max(ts) if ts else None
 
+    def _step_speaker(self, st) -> str | None:
+        """The face track a step goes to when it is the speaking face the speech detector's chain
+        names (its ``speaker``, or on a speech region of frames e..e+3), else None."""
+        if st.speaker is not None:
+            return st.speaker
+        speech = self.detectors.get("speech")
+        if speech is None or not speech.available:
+            return None
+        for k in range(st.frame, st.frame + 4):
+            region = self.regions.get(k)
+            if region is not None and "speech" in region.detectors:
+                tid = speech.decide(k)[2]
+                if tid is not None:
+                    return tid
+        return None
+
+    def _latest_subject(self, e: int) -> str | None:
+        """The subject (face track id or None) of the latest target at or before frame e on e's shot."""
+        first, _ = shot_bounds(e, self.cuts)
+        before = [tg for tg in self.targets if first <= tg.nft.t <= e]
+        return max(before, key=lambda tg: tg.nft.t).nft.subject if before else None
+
+    def _speaker_turn(self, st) -> bool:
+        """Whether a step is a change of speaker made by the speech detector's decision chain (to
+        a face that is not the subject of the shot's latest target). The chain's own cost of a
+        change of face (about a second of clear evidence inside speech, less at a voice onset) is
+        its hysteresis, so the minimum hold is not added on top: it would defer the answer to a
+        turn shorter than the hold (0.8 s turns on the interview-halves composite) past its start."""
+        tid = self._step_speaker(st)
+        return tid is not None and tid != self._latest_subject(st.frame)
+
+    def _turn_step(self, m: int, region: Region | None, level: float) -> Step | None:
+        """Look-ahead: a change of speaker the speech detector's chain makes at frame m, as a step at
+        the chain's turn start (``SpeechDetector.turn_start``: the first frame the new face speaks
+        on the chain's best path, with the evidence after it; the decision of that frame itself had
+        less of it and held the previous face), proposed as soon as frame m is measured instead of
+        after the step detector's delay; the region is frame m's. None when frame m's region is not
+        a new speaker's (the latest target's subject), its level is within the step threshold of
+        the held level, or in causal mode (the chain has no hindsight there)."""
+        speech = self.detectors.get("speech")
+        if (self.causal or region is None or "speech" not in region.detectors or not math.isfinite(level)
+                or speech is None or not speech.available):
+            return None
+        tid = speech.decide(m)[2]
+        if tid is None or tid == self._latest_subject(m):
+            return None
+        held = self.step_detector.held[-1] if self.step_detector.held else float("nan")
+        if not math.isfinite(held) or abs(level - held) < self.step_detector.min_step:
+            return None
+        onset = speech.turn_start(m)
+        if onset is None:
+            return None
+        first, _ = shot_bounds(m, self.cuts)
+        floor = max([first] + [tg.nft.t + 1 for tg in self.targets if first <= tg.nft.t <= m])
+        return Step(min(max(onset, floor), m), held, level, speaker=tid, region_frame=m)
+
     def _propose(self, st) -> None:
         """A step of the focus signal: dropped next to a cut, else decided once its
         persistence window (calm) and the minimum hold after the previous target are seen."""
@@ -416,9 +484,10 @@ class AutofocusJob:
             log.debug("step at frame %d is a shot cut; the cut's own target covers it", e)
             return
         p = self.settings.pull
-        due = e + self.calm.persist_frames
+        due = (e if st.region_frame is None else max(e, st.region_frame)) + self.calm.persist_frames
         last = self._last_target_t(e)
-        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames:
+        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames \
+                and not self._speaker_turn(st):
             due = max(due, last + self.calm.hold_frames + p.lead_frames + p.pull_frames)
         self._pending.append((st, due))
 
@@ -441,7 +510,8 @@ class AutofocusJob:
             log.debug("step at frame %d: a cut follows at frame %d before it is decided; dropped", e, nxt)
             return
         tol = max(0.5 * abs(st.after - st.before), 0.3)
-        if self.calm.persist_frames and not persists(self.raw[e:min(e + self.calm.persist_frames, due + 1)],
+        seen = e if st.region_frame is None else max(e, st.region_frame)  # a turn step: measured from its region's frame
+        if self.calm.persist_frames and not persists(self.raw[seen:min(seen + self.calm.persist_frames, due + 1)],
                                                      st.after, tol):
             log.debug("step at frame %d: its new level %.2f does not persist; held", e, st.after)
             return
@@ -449,6 +519,11 @@ class AutofocusJob:
         if any(e <= tg.nft.t and first <= tg.nft.t for tg in self.targets):
             log.debug("step at frame %d: focus moved on since; dropped", e)
             return
+        speaker = self._step_speaker(st)
+        if speaker is not None and speaker == self._latest_subject(e):
+            log.debug("step at frame %d: focus is on its speaker (%s) already; dropped", e, speaker)
+            return
+        search = None if st.region_frame is None else range(st.region_frame, st.region_frame + 1)
         p = self.settings.pull
         # the shot's first target: a cut's, or the clip's initial focus (frame 0 is a shot's start too),
         # replaced by the subject found just after; a motion or saliency subject may be corrected again
@@ -461,10 +536,11 @@ class AutofocusJob:
                 and not any(first < tg.nft.t for tg in self.targets)):
             # look-ahead, soon after a cut: if this subject is already there on the cut frame (tracked
             # back to it), it is the shot's subject: focus on it on the cut itself
-            if self._commit(st, ingest, at_cut=cut_tg):
+            if self._commit(st, ingest, search=search, at_cut=cut_tg):
                 return
         last = self._last_target_t(e)
-        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames:
+        if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames \
+                and not self._speaker_turn(st):
             t_new = last + self.calm.hold_frames + p.lead_frames + p.pull_frames
             if t_new >= self.n:
                 return
@@ -473,11 +549,9 @@ class AutofocusJob:
             if seen.size == 0 or abs(float(np.median(seen)) - st.after) > tol:
                 log.debug("step at frame %d (minimum hold until %d): the scene no longer asks for it", e, t_new)
                 return
-            from .combine import Step
-
             self._commit(Step(t_new, st.before, st.after), ingest, search=range(max(t_new - 4, 0), t_new + 1))
             return
-        self._commit(st, ingest)
+        self._commit(st, ingest, search=search)
 
     def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int,
                         t: int = 0) -> None:

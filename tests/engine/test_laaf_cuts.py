@@ -291,3 +291,35 @@ def test_the_first_speaker_keeps_the_first_focus_when_a_second_speaks_within_the
     assert first.t == 0 and first.detail.get("start") and first.detail.get("subject_from_frame") == 4
     assert first.x < w / 2 and la.focus[4] == pytest.approx(la.focus[0], abs=0.05)
     assert [n.t for n in rest] == [22] and rest[0].x > w / 2 and rest[0].source == "speech"
+
+
+def test_look_ahead_lands_every_change_of_speaker_before_the_voice_even_in_quick_turns(tmp_path, monkeypatch):
+    """Three turns, the middle one (frames 36-52, 0.7 s) shorter than the minimum hold (1 s at the
+    default calm): in look-ahead mode each change of speaker is a target at the new speaker's voice
+    onset whose pull has landed before it (the speech chain's own cost of a change is its
+    hysteresis; the hold once deferred the answer at frame 56 past its start, to frame 76). Causal
+    mode starts its pulls only after the evidence, after the onsets."""
+    from batch_synth import fake_faces, make_talking_clip
+    from rvr_addon.laaf.detectors import face, speech
+
+    turns = ((6, 30, 0), (36, 52, 1), (56, 90, 0))
+    clip, depth, audio = make_talking_clip(tmp_path, frames=100, turns=turns, pan=0.0)
+    monkeypatch.setattr(face.FaceBackend, "detect", fake_faces)
+    monkeypatch.setattr(speech, "analyse_audio", lambda samples, fps, n, **kw: audio)
+    w = 200  # talking_blobs' frame width: head 0 left of the middle, head 1 right of it
+
+    def run(causal):
+        return AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset="conversation", face_backend="haar",
+                                              causal=causal)).run(progress=False)
+
+    la = run(False)
+    first, *rest = la.nfts
+    assert first.t == 0 and first.x < w / 2
+    assert [n.x > w / 2 for n in rest] == [True, False]
+    for nft, (onset, _, _) in zip(rest, turns[1:]):
+        assert onset - 2 <= nft.t <= onset and nft.source == "speech"
+    ends = [p.end for p in la.composed.pulls]
+    assert len(ends) == 2 and all(end < onset for end, (onset, _, _) in zip(ends, turns[1:]))
+    causal = run(True)
+    starts = [p.start for p in causal.composed.pulls][-2:]  # (the first is to the first speaker: no hindsight)
+    assert all(s > onset for s, (onset, _, _) in zip(starts, turns[1:]))

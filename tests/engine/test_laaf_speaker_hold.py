@@ -125,3 +125,33 @@ def test_a_change_to_a_face_whose_voice_is_not_the_one_heard_is_dearer():
     assert det._voice_factor("A", 82) == pytest.approx(2.0 ** det.voice_id_weight)
     assert det._voice_factor("B", 82) == 1.0
     assert det._voice_factor("A", 30) == 1.0  # its own voice: the plain price, never cheaper
+
+
+def test_the_turn_of_a_new_speaker_starts_at_the_voice_onset_the_chain_sees_in_hindsight():
+    """B answers after a pause with moderate evidence (0.3 against "nobody"'s 0.15): the chain
+    needs more than its smoother's half second of it, so the onset frame's own decision still
+    holds A and B is named a few frames into the turn; ``turn_start`` of that frame, read from
+    the best path with the evidence after the onset, is the onset itself (what lets LAAF's
+    pull land before the voice, ``lookahead._turn_step``). Causal mode has no such hindsight
+    beyond the frames decided."""
+    n = 150
+    a, b = np.zeros(n), np.zeros(n)
+    a[10:60] = 0.5
+    b[70:130] = 0.3
+    track = audio(n, [(10, 59), (70, 129)])
+    det = SpeechDetector(FixedFaces(), FPS, n, audio=track, sync=False, mouth="motion")
+    det._evidence = lambda t: {"A": float(a[t]), "B": float(b[t])} if track.voiced[t] else {}
+    frame = AnalysisFrame(0, np.zeros((120, 200, 3), np.uint8), np.zeros((120, 200), np.uint8), None, 1.0, FPS)
+    named, starts = {}, {}
+    for t in range(n):
+        frame.t = t
+        det.ingest(t, frame, (None, None, None))
+        k = t - det.lookahead_frames
+        if k >= 0:
+            named[k] = det.decide(k)[2]
+            starts[k] = det.turn_start(k)
+    first = next(k for k in range(70, n) if named[k] == "B")
+    assert 70 < first < 90  # the onset frame's own decision did not name B yet
+    assert starts[first] == 70  # ... but the turn it names starts at the onset
+    assert all(starts[k] == 70 for k in range(first, n - det.lookahead_frames))
+    assert starts[30] == 10 and starts[65] is None  # A's turn from its onset; a pause names nobody

@@ -665,6 +665,33 @@ class SpeechDetector(FocusDetector):
         state = path[t]
         return state[0] if state[1] and state[0] != NOBODY else None
 
+    def turn_start(self, t: int) -> int | None:
+        """The first frame (<= t) of the turn the chain gives the face that speaks at frame t
+        (:meth:`decide`): back along the best path from the newest frame decision t saw (t +
+        ``smooth_s``; causal: t), over the frames on which that face speaks or holds, the earliest
+        voiced one on which it speaks. Inside the look-ahead this is the change of face as the chain places
+        it with the evidence after the onset too (typically the voice onset), where the decision of
+        the onset frame itself, made with less of that evidence, still held the previous face.
+        None where t's decision names nobody, or the path has left the face by its newest frame."""
+        tid = self.decide(t)[2]
+        if tid is None:
+            return None
+        end = t if self.causal else min(t + self.smooth, self._scored)
+        if end not in self._chain:
+            return t
+        state = max(self._chain[end], key=lambda k: self._chain[end][k][0])
+        if state[0] != tid:
+            return None
+        start, k, voiced = t, end, self.audio.voiced
+        while k - 1 in self._chain and state in self._chain[k]:
+            prev = self._chain[k][state][1]
+            if prev[0] != tid or prev not in self._chain[k - 1]:
+                break
+            k, state = k - 1, prev
+            if state[1] and k < len(voiced) and voiced[k]:
+                start = k
+        return start
+
     def decide(self, t: int) -> tuple[Box | None, float, str | None]:
         """(speaker's face box in analysis px or None, its evidence at t, face track id)."""
         if t in self._decisions:
