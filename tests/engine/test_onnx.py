@@ -80,6 +80,10 @@ def test_afnet_onnx_matches_torch(afnets):
     assert [p.t for p in p_t.peaks] == [p.t for p in p_o.peaks]
 
 
+EXPORT_TOLERANCE = 2e-5
+"""A fresh export against the committed file, relative to the output's magnitude (at least 1)."""
+
+
 def test_committed_onnx_files_come_from_the_shipped_weights(tmp_path, estimators, afnets):
     """A fresh export (scripts/export_onnx.py) gives the committed files' outputs, and each file
     records the hash of the .pt beside it: retrained weights without a new export fail here."""
@@ -93,14 +97,17 @@ def test_committed_onnx_files_come_from_the_shipped_weights(tmp_path, estimators
     frame = _frame(90, 161, 7)
     committed = Estimator(estimators[1])(frame)
     regenerated = Estimator(load_estimator(fresh["estimator.onnx"]))(frame)
+    # float32 ULPs: constant folding at export runs on this machine's CPU (AVX2 / AVX-512 paths differ),
+    # so a fresh export matches the committed one to ~1e-6 of the output's scale, not bit for bit; a
+    # retrained network differs by orders of magnitude more
     for a, b in zip(committed, regenerated):
-        assert float(np.abs(a - b).max()) <= 1e-6
+        assert float(np.abs(a - b).max()) <= EXPORT_TOLERANCE * max(1.0, float(np.abs(a).max()))
     cfg = afnets[1].config
     codes = np.random.default_rng(5).integers(0, 256, (2, cfg.f_t, cfg.channels, cfg.height, cfg.width), np.uint8)
     new_model, header = load_afnet(fresh["afnet_unit.onnx"])
     assert header["file_id"] == onnxrun.file_hash(AFNET_PT)
     for a, b in zip(runner_of(afnets[1]).unit(codes, None), runner_of(new_model).unit(codes, None)):
-        assert float(np.abs(a - b).max()) <= 1e-6
+        assert float(np.abs(a - b).max()) <= EXPORT_TOLERANCE * max(1.0, float(np.abs(a).max()))
 
 
 def test_backend_choice(monkeypatch, tmp_path):
