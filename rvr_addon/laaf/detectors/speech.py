@@ -34,7 +34,9 @@ is multiplied by up to ``2 ** voice_id_weight`` when the voice at that frame is 
 the new face was heard with before (:meth:`SpeechDetector._voice_factor`; the cepstra of its
 committed speaking frames). Look-ahead mode decides frame t by the best path (Viterbi) ending
 ``smooth_s`` after t (a fixed-lag smoother: the evidence of the next second is used); causal
-mode by the best path ending at t. Decisions become final ``commit_s`` after they are made: the
+mode by the best path ending at t (:meth:`SpeechDetector.turn_start`: the first voiced frame of the
+named face's turn on that path, which LAAF's look-ahead takes as the change of speaker's frame: the
+onset frame's own decision had less of the evidence after it). Decisions become final ``commit_s`` after they are made: the
 chain keeps only the decided state of those frames, so a change of face later pays its cost
 from the decided past (without this, a face held through the other's whole turn could take it
 back in hindsight as soon as its mouth correlated for half a second). The heat map is the
