@@ -38,11 +38,14 @@ from .fast import FastRenderer, check_frame_inputs
 from .model import (
     MATTE_OFFSETS,
     OCCLUSION_DELAY,
+    SURFACE_STEPS,
     LayerPlan,
+    fill_weight,
     hdr_radiance,
     matte_unnormalised,
     max_blur_radius,
     plan_layers,
+    visible_fraction,
 )
 
 CPU_BATCH_MB = 256
@@ -191,8 +194,10 @@ class TorchRenderer:
         radiance1 = torch.cat([radiance, torch.ones_like(radiance[:1])])  # [L, 1]: colour and matte
         acc = torch.zeros_like(radiance)
         cov = torch.zeros_like(u)
-        hidden = torch.zeros_like(u)  # sum of V_i over layers i <= j - S (model step 4)
-        visible: dict[int, Any] = {}
+        hidden = torch.zeros_like(u)  # H_j: sum of V_i over layers i <= j - S (model step 4)
+        far = torch.zeros_like(u)  # F_j: sum of V_i over layers i < j - SURFACE_STEPS
+        visible: dict[int, Any] = {}  # V_i not yet in `hidden`
+        near: dict[int, Any] = {}  # V_i in `hidden`, not yet in `far`
         for batch in self._batches(layers, plan.step, h, w, radiance.device):
             j = torch.tensor(batch, dtype=u.dtype, device=u.device)[:, None, None]
             x = radiance1[None] * (matte_unnormalised(u[None], j) / norm)[:, None]  # (B, 4, H, W)
@@ -205,18 +210,21 @@ class TorchRenderer:
             for k, jj in enumerate(batch):  # front to back
                 c, wj = blurred[k, :3], blurred[k, 3]
                 for i in sorted(i for i in visible if i <= jj - OCCLUSION_DELAY):
-                    hidden += visible.pop(i)
+                    near[i] = visible.pop(i)
+                    hidden += near[i]
+                for i in sorted(i for i in near if i < jj - SURFACE_STEPS):
+                    far += near.pop(i)
                 if self.naive:
                     acc += c
                     cov += wj
                 else:
-                    t = (1.0 - hidden).clamp(min=0.0)
+                    t = visible_fraction((1.0 - hidden).clamp(min=0.0), (1.0 - far).clamp(min=0.0), wj)
                     v = t * wj
                     acc += t * c
                     cov += v
                     visible[jj] = v
             del blurred
-        weight = cov.clamp(max=1.0)
+        weight = fill_weight(cov)
         fill = push_pull_fill_torch(radiance[None], weight[None, None], u[None, None])[0]
         return acc / cov.clamp(min=1.0) + (1.0 - weight) * fill
 

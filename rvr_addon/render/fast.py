@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import os
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
+from itertools import groupby
 from typing import Any
 
 import cv2
@@ -31,6 +32,7 @@ from ..color import image_to_linear, linear_to_srgb
 from ..errors import InputError
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
+    COVERAGE_SNAP,
     EXP_FLOOR,
     FILL_DEPTH_SHARPNESS,
     FILL_DEPTH_TOLERANCE,
@@ -38,6 +40,7 @@ from .model import (
     MATTE_FLOOR,
     MATTE_OFFSETS,
     OCCLUSION_DELAY,
+    SURFACE_STEPS,
     WEIGHT_EPS,
     LayerPlan,
     hdr_radiance,
@@ -63,14 +66,6 @@ the same mismatch, and its full-resolution blur costs most of what the reduction
 ``FastRenderer(half_res_radius=None)`` keeps every layer exact. (Those figures are with the old fill,
 FILL_DEPTH_TOLERANCE 1; with 2 the real depth map gives 59.2 dB at 16 px, 53.3 at 12, 47.1 at 8: see
 docs/renderer.md.)"""
-COVERAGE_SNAP = 1e-6
-"""A pixel's coverage within this of 1 counts as 1 in the resolve (model step 5). A fully covered
-pixel's coverage sums to 1 - 1.2e-7 or 1 in float32 depending on the order of the sums (tiles, DFT
-sizes), and the model's fill treats the two differently beside a much farther background: at
-``1 - w = 1.2e-7`` the push takes the farther coarse fill instead of the pixel's own sample (its depth
-factor, e^-2 a step, outweighs the pixel's weight), and that fill spreads to the neighbours the
-level-1 fill serves. The float64 reference sums to 1 within 1e-15 there, so the snap brings the fast
-path to it (on the render tests' frame with a foreground 11 steps in front: 6e-5 -> 1e-7 of the peak)."""
 PUSH_PULL_NUMPY_BELOW = 16
 """Push-pull levels with a side below this many px are done in plain numpy (they are tiny, and
 OpenCV's Python bindings read an (n <= 4, 1) array as a scalar)."""
@@ -92,6 +87,24 @@ UPSAMPLE_NS = 1.5
 WORK_NS_PER_PX = 60.0
 """``FastRenderer.work_px`` reports the modelled cost in units of this many ns (one pixel of a
 1080p layer box of the old one-box-per-layer path, so cost.S_PER_WORK_PX stays comparable)."""
+
+def _overlapping(boxes: list[Box]) -> list[bool]:
+    """For each box (y0, y1, x0, x1), whether it overlaps another of the list."""
+    b = np.array(boxes, dtype=np.int64).reshape(-1, 4)
+    hit = ((b[:, None, 0] < b[None, :, 1]) & (b[None, :, 0] < b[:, None, 1])
+           & (b[:, None, 2] < b[None, :, 3]) & (b[None, :, 2] < b[:, None, 3]))
+    np.fill_diagonal(hit, False)
+    return hit.any(axis=1).tolist()
+
+
+def _subtract_pieces(total: np.ndarray, touched: np.ndarray, pieces: list, tile: int) -> None:
+    """Subtract a layer's visible coverage, (box, V) rectangles, from the frame-sized ``total``; mark
+    the ``tile`` x ``tile`` tiles it reaches in ``touched``."""
+    for (y0, y1, x0, x1), v in pieces:
+        dst = total[y0:y1, x0:x1]
+        cv2.subtract(dst, v, dst=dst)
+        touched[y0 // tile:-(-y1 // tile), x0 // tile:-(-x1 // tile)] = True
+
 
 def blur_ns_per_px(kernel_side: int, channels: int = 4) -> float:
     """Modelled ns per pixel of blurring ``channels`` float32 planes with a (k, k) kernel: directly
@@ -185,46 +198,79 @@ class FastRenderer:
         channels = [p.result() for p in pending][-1]
         # the fill's samples (model.fill_encode of the radiance) on a worker while the layers composite
         encoded = self._submit(lambda: [cv2.sqrt(cv2.max(c, 0.0)) for c in channels])
-        acc = [np.zeros((h, w), dtype=np.float32) for _ in range(4)]  # sum T C (RGB), cov = sum T W (step 4)
-        hidden = np.zeros((h, w), dtype=np.float32)  # sum of V_i over layers i <= j - S
+        acc = [np.zeros((h, w), dtype=np.float32) for _ in range(3 + self.naive)]  # sum T C (RGB) (step 4)
+        left = np.ones((h, w), dtype=np.float32)  # 1 - H_j: H_j the sum of V_i over layers i <= j - S
+        left_far = np.ones((h, w), dtype=np.float32)  # 1 - F_j: F_j over layers i < j - SURFACE_STEPS
         tl = self.tile
-        touched = np.zeros((-(-h // tl), -(-w // tl)), bool)  # tiles where `hidden` may be > 0
-        visible: deque = deque()  # (layer, [(box, V)]) not yet added to `hidden`
-        current = None
+        touched = np.zeros((-(-h // tl), -(-w // tl)), bool)  # tiles where `left` may be < 1
+        touched_far = np.zeros_like(touched)  # tiles where `left_far` may be < 1
+        visible: deque = deque()  # (layer, [(box, V)]) not yet in `left`
+        near: deque = deque()  # (layer, [(box, V)]) in `left`, not yet in `left_far`
+        layer_w = np.zeros((h, w), dtype=np.float32)  # a layer's coverage W_j where its rectangles overlap
         spectra = self._spectra
 
         def blur(task: BlurTask):
             return task, blur_task(channels, u, inv_norm, task, spectra)
 
         # blurs run ahead on worker threads (OpenCV's filters are single-threaded and release the
-        # GIL); compositing stays in front-to-back order on this thread
-        for task, planes in self._map_ordered(blur, tasks):
-            if task.j != current:
-                while visible and visible[0][0] <= task.j - OCCLUSION_DELAY:
-                    for (b0, b1, b2, b3), v in visible.popleft()[1]:
-                        box_hidden = hidden[b0:b1, b2:b3]
-                        cv2.add(box_hidden, v, dst=box_hidden)
-                        touched[b0 // tl:-(-b1 // tl), b2 // tl:-(-b3 // tl)] = True
-                if not self.naive:
-                    visible.append((task.j, []))
-                current = task.j
-            y0, y1, x0, x1 = task.box
-            box_hidden = hidden[y0:y1, x0:x1]
-            if self.naive or not touched[y0 // tl:-(-y1 // tl), x0 // tl:-(-x1 // tl)].any():  # nothing in front: T = 1
-                for a, p in zip(acc, planes):
-                    dst = a[y0:y1, x0:x1]
-                    cv2.add(dst, p, dst=dst)
-                if not self.naive:
-                    visible[-1][1].append((task.box, planes[3]))
-            else:
-                t = cv2.max(cv2.subtract(1.0, box_hidden), 0.0)
+        # GIL); compositing stays in front-to-back order on this thread, one layer's rectangles at a time
+        for j, group in groupby(self._map_ordered(blur, tasks), key=lambda tp: tp[0].j):
+            pieces = list(group)
+            if self.naive:
+                for task, planes in pieces:
+                    y0, y1, x0, x1 = task.box
+                    for a, p in zip(acc, planes):
+                        dst = a[y0:y1, x0:x1]
+                        cv2.add(dst, p, dst=dst)
+                continue
+            while visible and visible[0][0] <= j - OCCLUSION_DELAY:
+                near.append(visible.popleft())
+                _subtract_pieces(left, touched, near[-1][1], tl)
+            while near and near[0][0] < j - SURFACE_STEPS:
+                _subtract_pieces(left_far, touched_far, near.popleft()[1], tl)
+            behind = [touched[y0 // tl:-(-y1 // tl), x0 // tl:-(-x1 // tl)].any()
+                      for y0, y1, x0, x1 in (task.box for task, _ in pieces)]
+            shared = _overlapping([task.box for task, _ in pieces]) if any(behind) else [False] * len(pieces)
+            if any(shared):
+                # T_j needs the layer's whole coverage W_j at each pixel: where its rectangles overlap, their sum
+                for (task, planes), sh in zip(pieces, shared):
+                    if sh:
+                        y0, y1, x0, x1 = task.box
+                        layer_w[y0:y1, x0:x1] = 0.0
+                for (task, planes), sh in zip(pieces, shared):
+                    if sh:
+                        y0, y1, x0, x1 = task.box
+                        dst = layer_w[y0:y1, x0:x1]
+                        cv2.add(dst, planes[3], dst=dst)
+            seen = []  # (box, V) of this layer's rectangles
+            for (task, planes), front, sh in zip(pieces, behind, shared):
+                y0, y1, x0, x1 = task.box
+                if not front:  # nothing in front: T = 1
+                    for a, p in zip(acc, planes):
+                        dst = a[y0:y1, x0:x1]
+                        cv2.add(dst, p, dst=dst)
+                    seen.append((task.box, planes[3]))
+                    continue
+                # model.visible_fraction: T = max(min(1 - F, (1 - H) / max(W, WEIGHT_EPS)), 0) (1 - H and 1 - F
+                # are >= 0 up to rounding, which the clamp at 0 takes out)
+                t = cv2.divide(left[y0:y1, x0:x1], cv2.max(layer_w[y0:y1, x0:x1] if sh else planes[3], WEIGHT_EPS))
+                far_box = left_far[y0:y1, x0:x1] if touched_far[y0 // tl:-(-y1 // tl), x0 // tl:-(-x1 // tl)].any() else 1.0
+                cv2.min(t, far_box, dst=t)
+                cv2.max(t, 0.0, dst=t)
                 for a, p in zip(acc, planes):
                     cv2.accumulateProduct(p, t, a[y0:y1, x0:x1])
-                visible[-1][1].append((task.box, cv2.multiply(t, planes[3])))
+                seen.append((task.box, cv2.multiply(t, planes[3])))
+            visible.append((j, seen))
+        if self.naive:
+            cov = acc.pop()
+        else:  # cov = sum V = 1 - left once every layer is in it
+            while visible:
+                _subtract_pieces(left, touched, visible.popleft()[1], tl)
+            cov = cv2.subtract(1.0, left)
         # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
-        *acc_rgb, cov = acc
+        acc_rgb = acc
         weight = cv2.min(cov, 1.0)
-        # a coverage within COVERAGE_SNAP of 1 is 1 (float32 rounding, not an uncovered pixel)
+        # model.fill_weight: a coverage within COVERAGE_SNAP of 1 is 1 (rounding, not an uncovered pixel)
         weight = cv2.max(weight, cv2.threshold(weight, 1.0 - COVERAGE_SNAP, 1.0, cv2.THRESH_BINARY)[1])
         fill = fill_level1_cv(encoded.result(), weight, u, pmap=self._map)
         scale = cv2.divide(1.0, cv2.max(cov, 1.0))

@@ -18,22 +18,39 @@ The model, for every renderer (fast tiles, torch, brute-force reference):
    aperture kernel of radius ``|s_j|`` (a scatter: a point spreads into the PSF; zero outside
    the frame) into ``C_j`` and ``W_j``. Nothing is counted twice: the layers of a pixel carry
    its radiance once, so a blurred object keeps its energy;
-4. layers are composited FRONT to back with delayed occlusion. The visible fraction of layer j
-   is ``T_j = max(0, 1 - sum_{i <= j - S} V_i)`` with ``V_i = T_i * W_i`` the visible coverage
-   of layer i and ``S = OCCLUSION_DELAY = 2`` steps; ``acc = sum_j T_j C_j`` and
-   ``cov = sum_j V_j``. A layer is hidden by the visible coverage of the layers at least S
-   steps in front of it (for S = 1 this is exactly the "over" operator of eq. 4, with the
-   matte blurred too so background blur never bleeds over a foreground silhouette). Layers
-   less than S steps apart add instead: they share pixels through the soft matte of eq. 2, and
-   a surface must not occlude itself (with S = 1 a surface split between layers hides ~10% of
-   itself and lets ~10% of the background through; the earlier ``alpha_j = M_j / P_j`` cure
-   made it opaque but put a full-strength copy of every pixel in the back-most layer of its
-   matte, which more than doubled the energy of a small blurred highlight). The parts of a
-   surface lie within 3 steps and those 2 or 3 steps apart carry <= 5.5% each, so with S = 2
-   a sharp surface is opaque to what lies S steps behind its parts and hides at most 0.3% of
-   itself (restored by step 5); surfaces closer than that blend like the naive sum;
+4. layers are composited FRONT to back; a layer is hidden by the visible coverage of the layers
+   in front of it, by saturation within a surface and by "over" beyond. ``V_i = T_i W_i`` is the
+   visible coverage of layer i; ``H_j = sum_{i <= j - S} V_i`` (``S = OCCLUSION_DELAY = 1``: every
+   layer in front) and ``F_j = sum_{i < j - SURFACE_STEPS} V_i`` (those more than 3 steps in
+   front). The visible fraction of layer j is ``T_j = min(1 - F_j, (1 - H_j) / W_j)`` (both
+   clamped at 0; :func:`visible_fraction`), ``acc = sum_j T_j C_j`` and ``cov = sum_j V_j``.
+   So layer j takes, up to its own coverage, what the layers up to 3 steps in front leave,
+   ``V_j = min(W_j (1 - F_j), 1 - H_j)``, and the farther ones hide it by the "over" operator of
+   eq. 4, ``T_j = 1 - F_j`` where nothing nearer is in front (with the matte blurred too, not the
+   sharp ``(1 - M)`` of eq. 4, so background blur never bleeds over a foreground silhouette and a
+   blurred one is semi-transparent over the sharp background behind it). ``cov <= 1``.
+   Why saturation within 3 steps: "over" treats the coverage of the layers in front and that of
+   layer j as independent, and on a depth gradient (every tile of an estimated depth map) they
+   are not: neighbouring layers are neighbouring contour bands of one surface whose blurs overlap,
+   ``W_i + W_j ~ 1``, and over hid ``W_i W_j`` of the farther band (a smooth surface has no
+   disocclusion; on a straight edge between two surfaces on one side of the focal plane the lens
+   points that see past the nearer one and those that see the farther one are nested half-planes
+   of the aperture, so the farther one is seen on exactly ``min(W_j, 1 - W_i)``). Over (then
+   with S = 2) left a 2-30 % coverage deficit on the real-depth frame of bench/render_bench.py,
+   73 % of it from layers 2 steps in front, 19 % from 3, which the fill of step 5 laid over the
+   frame as a grey veil. Saturation also lets the parts of one pixel (the soft matte of eq. 2
+   splits it between <= 4 adjacent layers) sum without hiding one another, which is why "over"
+   needed a delay of 2 steps (with S = 1 a surface hid ~10% of itself; the earlier ``alpha_j =
+   M_j / P_j`` cure more than doubled the energy of a small blurred highlight). Beyond 3 steps
+   the coverage in front is mostly a whole other surface or a sharp silhouette's soft matte (it
+   hands ~5 % of its rim to the layers beside it), not a band beside layer j, and there "over"
+   is kept: saturating it let the blurred background through a sharp silhouette's rim (1.7 ->
+   3.3 % on the render tests' frame). Where layer j has nothing behind the layers in front in the
+   input (the hole in the background around a blurred foreground's rim) ``W_j < 1 - H_j`` and the
+   deficit stays, for the fill;
 5. the result is resolved by the coverage:
-   ``out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill``.
+   ``out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill`` (a coverage within COVERAGE_SNAP of 1
+   counts as 1: :func:`fill_weight`).
    ``cov < 1`` where light reaches the lens from behind every visible layer: the background
    occluded in the input, seen around a blurred foreground's rim (the layers behind it have a
    hole where the foreground was), beyond the frame border (a blur reaching outside the frame),
@@ -43,8 +60,8 @@ The model, for every renderer (fast tiles, torch, brute-force reference):
    surface no longer covers is no evidence of what lies behind it), in which, within each 2x2
    block and between levels, a sample more than FILL_DEPTH_TOLERANCE steps in front of the
    farthest one fades by ``exp(-FILL_DEPTH_SHARPNESS)`` per step (an occluder is not the
-   background it hides; the tolerance is OCCLUSION_DELAY = 2 steps, what the compositing treats
-   as one surface: with 1 step an estimated depth map's small far outliers, the HDR lights it puts
+   background it hides; the tolerance is 2 steps, what the compositing treated as one surface when
+   it was "over" with a delay of 2: with 1 step an estimated depth map's small far outliers, the HDR lights it puts
    2-3 steps behind their surroundings, won every block up the pyramid and the fill, taken by the
    1-20 % coverage deficits of a depth gradient, turned half of the frame white), weights are averaged (not saturated) up the pyramid, and the fill is
    the half-resolution level upsampled. The pyramid averages ``sqrt(L)`` and the fill is the
@@ -81,14 +98,29 @@ MATTE_FLOOR = math.exp(-LAMBDA * MATTE_CUTOFF**2)
 """Value subtracted from the Gaussian so the matte reaches 0 continuously at the cutoff."""
 MATTE_OFFSETS = range(-1, 3)
 """Layers a pixel at layer coordinate u can touch: floor(u) + MATTE_OFFSETS."""
-OCCLUSION_DELAY = 2
-"""S of step 4: a layer is occluded by the layers at least this many steps in front of it."""
+OCCLUSION_DELAY = 1
+"""S of step 4: a layer is hidden by the layers at least this many steps in front of it (2 while
+the compositing was "over" only, so that a pixel split between adjacent layers did not hide itself)."""
+SURFACE_STEPS = 3
+"""Step 4: the layers at most this many steps in front of a layer hide it by saturation (one
+surface's neighbouring contour bands), those farther in front by "over"."""
 FILL_DEPTH_SHARPNESS = 2.0
 """kappa of step 5, per layer step: a sample more than FILL_DEPTH_TOLERANCE steps nearer than
 the farthest one around it weighs exp(-kappa * excess) as much (e^-2 per step)."""
 FILL_DEPTH_TOLERANCE = 2.0
 """Depth difference in layer steps within which the fill treats samples as one background (the
-OCCLUSION_DELAY within which the compositing treats layers as one surface; was 1, see step 5)."""
+delay of the "over"-only compositing, which treated layers 2 steps apart as one surface; was 1,
+see step 5)."""
+COVERAGE_SNAP = 1e-6
+"""A pixel's coverage within this of 1 counts as 1 in the resolve (step 5, :func:`fill_weight`). The
+fill treats a coverage of 1 and of 1 - 1e-13 differently beside a much farther background: the push
+takes the coarse (farther) fill instead of the pixel's own sample wherever ``1 - w`` outweighs the
+sample's depth factor (e^-2 a step: e^-42 at 23 steps), and that fill spreads to the neighbours the
+level-1 fill serves. A fully covered pixel's coverage sums to 1 only up to rounding, in float32
+(fast path: 1 - 1.2e-7 or 1 depending on the order of the sums) and in float64 (the reference's
+saturated layers, ``H + (1 - H)``: 1 - 2.5e-13 on the bench scene, which flipped a pixel's fill from
+0.98 to 0.30), so every path snaps it (before: only the fast path, against a float64 reference
+that then summed to 1 within 1e-15; on the render tests' frame 6e-5 -> 1e-7 of the peak)."""
 EXP_FLOOR = -60.0
 """Lower clamp of the fill's exponents (relative weights below e^-60 are treated as e^-60),
 which keeps every weight sum positive in float32."""
@@ -322,6 +354,27 @@ def push_pull_levels(c: np.ndarray, w: np.ndarray, z: np.ndarray, kappa: float =
     return f, g
 
 
+def visible_fraction(remaining: Any, remaining_far: Any, coverage: Any) -> Any:
+    """``T_j`` of step 4: ``min(remaining_far, remaining / max(coverage, WEIGHT_EPS))``.
+
+    remaining: ``max(0, 1 - H_j)``, the coverage every layer at least OCCLUSION_DELAY steps in
+    front leaves; remaining_far: ``max(0, 1 - F_j)``, what those more than SURFACE_STEPS in front
+    leave; coverage: ``W_j``, the layer's blurred matte. Numpy or torch, elementwise."""
+    if isinstance(remaining, np.ndarray) or np.isscalar(remaining):
+        return np.minimum(remaining_far, remaining / np.maximum(coverage, WEIGHT_EPS))
+    return remaining_far.minimum(remaining / coverage.clamp(min=WEIGHT_EPS))
+
+
+def fill_weight(cov: Any) -> Any:
+    """Step 5's ``min(cov, 1)``, 1 within COVERAGE_SNAP of 1 (numpy or torch): the fill's sample
+    weights and the share of the fill, ``1 - fill_weight(cov)``."""
+    if isinstance(cov, np.ndarray):
+        w = np.minimum(cov, 1.0)
+        return np.where(w >= 1.0 - COVERAGE_SNAP, 1.0, w).astype(cov.dtype, copy=False)
+    w = cov.clamp(max=1.0)
+    return w.masked_fill(w >= 1.0 - COVERAGE_SNAP, 1.0)
+
+
 def resolve(acc: np.ndarray, cov: np.ndarray, fill: np.ndarray) -> np.ndarray:
-    """Step 5: ``acc / max(cov, 1) + (1 - min(cov, 1)) * fill`` ((H, W, 3), (H, W), (H, W, 3))."""
-    return acc / np.maximum(cov, 1.0)[..., None] + (1.0 - np.minimum(cov, 1.0))[..., None] * fill
+    """Step 5: ``acc / max(cov, 1) + (1 - fill_weight(cov)) * fill`` ((H, W, 3), (H, W), (H, W, 3))."""
+    return acc / np.maximum(cov, 1.0)[..., None] + (1.0 - fill_weight(cov))[..., None] * fill

@@ -13,12 +13,15 @@ import numpy as np
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
     OCCLUSION_DELAY,
+    SURFACE_STEPS,
     LayerPlan,
+    fill_weight,
     matte_unnormalised,
     plan_for_radius_map,
     push_pull_fill,
     resolve,
     signed_radius,
+    visible_fraction,
 )
 
 
@@ -84,16 +87,20 @@ def render_reference(
     h, w = rad.shape[:2]
     acc = np.zeros((h, w, 3))
     cov = np.zeros((h, w))
-    hidden = np.zeros((h, w))  # sum of V_i over layers i <= j - S (step 4)
-    visible: dict[int, np.ndarray] = {}
+    far = np.zeros((h, w))  # F_j: sum of V_i over layers i < j - SURFACE_STEPS
+    visible: dict[int, np.ndarray] = {}  # V_i of the layers not yet in `far`
     for j, m in reversed(list(zip(plan.indices.tolist(), mattes))):  # front to back
         blurred = spread(np.concatenate([rad * m[..., None], m[..., None]], axis=2), spec, abs(float(j) * plan.step))
         c, wj = blurred[..., :3], blurred[..., 3]
-        for i in sorted(k for k in visible if k <= j - OCCLUSION_DELAY):
-            hidden += visible.pop(i)
-        t = np.ones((h, w)) if naive else np.maximum(1.0 - hidden, 0.0)
+        for i in sorted(k for k in visible if k < j - SURFACE_STEPS):
+            far = far + visible.pop(i)
+        hidden = sum((v for i, v in visible.items() if i <= j - OCCLUSION_DELAY), far)  # H_j (step 4)
+        if naive:
+            t = np.ones((h, w))
+        else:
+            t = visible_fraction(np.maximum(1.0 - hidden, 0.0), np.maximum(1.0 - far, 0.0), wj)
         acc += t[..., None] * c
         cov += t * wj
         visible[j] = t * wj
-    fill = push_pull_fill(rad, np.minimum(cov, 1.0), u.astype(np.float64))
+    fill = push_pull_fill(rad, fill_weight(cov), u.astype(np.float64))
     return resolve(acc, cov, fill).astype(np.float32)

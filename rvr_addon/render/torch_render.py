@@ -1,7 +1,7 @@
 """Differentiable torch implementation of the RVR forward model (for training).
 
 Same model as :mod:`.model` (and the fast path): soft layer mattes of the signed radius,
-per-layer aperture blur, front-to-back compositing with delayed occlusion, resolved by the
+per-layer aperture blur, front-to-back compositing with delayed, saturating occlusion, resolved by the
 coverage with a depth-aware push-pull fill (avg-pool / bilinear-interpolate pyramid).
 Gradients flow to the radiance (hence to E) and, through the mattes, to the disparity.
 Layer radii are fixed per call (the plan is taken from the detached radius range), as in the
@@ -16,13 +16,16 @@ import torch.nn.functional as F
 from .aperture import ApertureSpec, make_kernel, zone_edges, zone_offset
 from .model import (
     OCCLUSION_DELAY,
+    SURFACE_STEPS,
     WEIGHT_EPS,
     LayerPlan,
     depth_factor,
     fill_decode,
+    fill_weight,
     fill_encode,
     matte_unnormalised,
     plan_layers,
+    visible_fraction,
 )
 
 DIRECT_MAX_SIDE = 11
@@ -104,8 +107,9 @@ def render_torch(
     norm = sum(matte_unnormalised(u, float(j)) for j in plan.indices)
     shape = (radiance.shape[0], 1, *radiance.shape[2:])
     zeros = lambda c: torch.zeros(shape[0], c, *shape[2:], dtype=radiance.dtype, device=radiance.device)  # noqa: E731
-    acc, cov, hidden = zeros(3), zeros(1), zeros(1)
+    acc, cov, hidden, far = zeros(3), zeros(1), zeros(1), zeros(1)  # hidden: H_j, far: F_j (model step 4)
     visible: dict[int, torch.Tensor] = {}  # V_i of layers not yet in `hidden`
+    near: dict[int, torch.Tensor] = {}  # V_i of layers in `hidden`, not yet in `far`
     for j in plan.indices[::-1].tolist():  # front to back (model step 4)
         m = matte_unnormalised(u, float(j)) / norm
         if not bool((m > 0).any()):
@@ -113,16 +117,20 @@ def render_torch(
         blurred = spread(torch.cat([radiance * m, m], dim=1), spec, abs(float(j) * plan.step))
         c, wj = blurred[:, :3], blurred[:, 3:4]
         for i in sorted(k for k in visible if k <= j - OCCLUSION_DELAY):
-            hidden = hidden + visible.pop(i)
+            near[i] = visible.pop(i)
+            hidden = hidden + near[i]
+        for i in sorted(k for k in near if k < j - SURFACE_STEPS):
+            far = far + near.pop(i)
         if naive:
             acc, cov = acc + c, cov + wj
         else:
-            t = (1.0 - hidden).clamp(min=0.0)
+            t = visible_fraction((1.0 - hidden).clamp(min=0.0), (1.0 - far).clamp(min=0.0), wj)
             v = t * wj
             acc, cov = acc + t * c, cov + v
             visible[j] = v
-    fill = push_pull_fill_torch(radiance, cov.clamp(max=1.0), u)
-    return acc / cov.clamp(min=1.0) + (1.0 - cov.clamp(max=1.0)) * fill
+    weight = fill_weight(cov)
+    fill = push_pull_fill_torch(radiance, weight, u)
+    return acc / cov.clamp(min=1.0) + (1.0 - weight) * fill
 
 
 def _pull(c: torch.Tensor, w: torch.Tensor, z: torch.Tensor):

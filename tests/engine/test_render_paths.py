@@ -371,3 +371,25 @@ def test_frame_borders_are_not_darkened():
         assert out[edge].mean() == pytest.approx(renorm[edge].mean(), rel=0.03)  # uncovered: ~1/2 as bright
     assert np.abs(out - renorm)[band].max() < 0.15
     assert np.abs(out - renorm)[~band].max() < 1e-4
+
+
+def test_a_dark_depth_gradient_gets_no_veil_from_the_fill():
+    """A dark textured surface on a smooth depth gradient (0 -> 24 px of blur, every tile on a slope,
+    as on an estimated depth map) under a bright far band: a smooth surface has no disocclusion, so
+    the blurred gradient keeps its own level. With "over" between its contour bands it lost 2-30 % of
+    its coverage to the layers 2-3 steps in front and the fill (which prefers the far, bright band)
+    doubled its level (+110 %); saturating within a surface leaves +5 %. All three paths agree."""
+    h, w = 96, 64
+    y = np.arange(h, dtype=np.float32)[:, None] * np.ones((1, w), np.float32)
+    disp = (24.0 * (1.0 - y / (h - 1))).astype(np.float32)  # far (24 px) at the top, in focus at the bottom
+    rad = np.full((h, w, 3), 0.05, np.float32)
+    rad[:6] = 3.0  # the bright far band
+    rad[6:] *= np.random.default_rng(0).uniform(0.5, 1.5, (h - 6, w, 1)).astype(np.float32)
+    band = (slice(50, 86), slice(16, 48))  # >= 20 px below the band's blur
+    fast = FastRenderer(half_res_radius=None).render_linear(rad, disp, 0.0, 1.0)
+    ref = render_reference(rad, disp, 0.0, 1.0)
+    tor = render_torch(torch.from_numpy(rad).permute(2, 0, 1)[None], torch.from_numpy(disp)[None], 0.0, 1.0)
+    tor = tor[0].permute(1, 2, 0).numpy()
+    for out in (fast, ref, tor):
+        assert np.abs(out[band].mean(axis=(0, 1)) / rad[band].mean(axis=(0, 1)) - 1.0).max() < 0.1
+    assert np.abs(fast - ref).max() < 1e-4 * float(ref.max())
