@@ -42,6 +42,16 @@ SHIPPED_ONNX = WEIGHTS_DIR / "estimator.onnx"
 DEFAULT_MAX_PIXELS = 1920 * 1088
 """Frames with more pixels run the network on a copy shrunk to this many pixels; D is still
 sliced and E gated at full resolution."""
+CONTEXT_PIXELS = 7200
+"""D's layout comes from a second, context pass of the network on a copy shrunk to this many
+pixels (about 98x73 at 4:3): there the network's receptive field spans ~2.8x more of the scene,
+so what is near and far across the frame is seen whole (Miangoleh et al., CVPR 2021, merge a
+low-resolution pass for layout with a high-resolution one for detail). Picked on the Middlebury
+views among 1/32..2x the 57,600 px the weights run at (0.804 -> 0.736), and better on Motorcycle
+and the real videos too; see docs/depth.md."""
+CONTEXT_SIGMA = 0.02
+"""Crossover of the two passes, Gaussian sigma as a fraction of the frame's width: D keeps the
+main pass's detail above it and takes the context pass's layout below it."""
 NO_WEIGHTS_HELP = (
     "the estimator's weights file is missing (rvr ships a trained estimator.pt in "
     "rvr_addon/estimate/weights/: restore it from the repository, see its MODEL.md). Or train your own on "
@@ -199,26 +209,64 @@ def preferred_max_pixels(model: LoadedModel) -> int:
     return int(value) if isinstance(value, (int, float)) and value >= 1 else DEFAULT_MAX_PIXELS
 
 
+def merge_context(d: np.ndarray, d_context: np.ndarray, sigma_px: float) -> np.ndarray:
+    """D with the low frequencies (below a Gaussian of ``sigma_px``, in px of ``d``) of
+    ``d_context`` and the high frequencies of ``d``: ``d + lowpass(d_context - d)``. ``d`` (H, W);
+    ``d_context`` any size (the context pass's own, smaller), in the same units (DESIGN px at
+    the frame's width). The low-pass runs at the context's size, or smaller so that sigma is
+    about 3 px there (cheap at 4K)."""
+    import cv2
+
+    h, w = d.shape
+    hc, wc = d_context.shape
+    f = min(wc / w, hc / h, 3.0 / max(sigma_px, 1e-6))
+    size = (max(int(round(w * f)), 1), max(int(round(h * f)), 1))
+    if size == (w, h):
+        small_d, small_c = d.astype(np.float32), d_context.astype(np.float32)
+    else:
+        small_d = cv2.resize(d.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+        small_c = cv2.resize(d_context.astype(np.float32), size, interpolation=cv2.INTER_AREA)
+    low = cv2.GaussianBlur(small_c - small_d, (0, 0), max(sigma_px * f, 1e-3), borderType=cv2.BORDER_REFLECT)
+    if size != (w, h):
+        low = cv2.resize(low, (w, h), interpolation=cv2.INTER_LINEAR)
+    return np.ascontiguousarray(d + low, dtype=np.float32)
+
+
 class Estimator:
     """Per-frame RGBD-HDR inference (the pure core of ``rvr estimate``).
 
     model: a :class:`LoadedModel`. max_pixels: frames larger than this run the network on a
     shrunk copy (linear-light area resampling); the grid is sliced with the full-resolution
     luma and E is gated at full resolution, so edges stay sharp. None: the size the weights
-    ask for (:func:`preferred_max_pixels`).
+    ask for (:func:`preferred_max_pixels`). context_pixels: D's layout from a second pass at
+    this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`); 0 turns it off. E always comes
+    from the main pass alone.
     """
 
-    def __init__(self, model: LoadedModel, max_pixels: int | None = None) -> None:
+    def __init__(self, model: LoadedModel, max_pixels: int | None = None,
+                 context_pixels: int = CONTEXT_PIXELS) -> None:
         self.model = model
         self.max_pixels = int(max_pixels) if max_pixels is not None else preferred_max_pixels(model)
+        self.context_pixels = int(context_pixels)
 
     def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """frame: (H, W, 3) uint8 sRGB. Returns (D (H, W) float32 in px of blur radius at
         aperture 1 at this width (DESIGN units), E (H, W, 3) float32 (eq. 3, >= 0))."""
         if frame.ndim != 3 or frame.shape[2] != 3:
             raise InputError(f"the estimator takes (H, W, 3) RGB frames, got shape {frame.shape}")
+        h, w = frame.shape[:2]
+        d, e = self._pass(frame, self.max_pixels)
+        if 0 < self.context_pixels < min(self.max_pixels, h * w):
+            d_context, _e = self._pass(frame, self.context_pixels, full_size=False)
+            d = merge_context(d, d_context, CONTEXT_SIGMA * w)
+        return d, e
+
+    def _pass(self, frame: np.ndarray, max_pixels: int, full_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """One pass of the network on ``frame`` shrunk to at most ``max_pixels``; (D, E) at full
+        size (sliced and gated by the full-size frame), or at the shrunk size (``full_size``
+        False; D still in px at the full width)."""
         if self.model.backend == "onnx":
-            return self._onnx(frame)
+            return self._onnx(frame, max_pixels, full_size)
         import cv2
         import torch
 
@@ -229,19 +277,19 @@ class Estimator:
         srgb = to_float01(frame)
         full = torch.from_numpy(np.ascontiguousarray(srgb)).permute(2, 0, 1)[None]
         small = full
-        if h * w > self.max_pixels:
-            s = (self.max_pixels / (h * w)) ** 0.5
+        if h * w > max_pixels:
+            s = (max_pixels / (h * w)) ** 0.5
             size = (max(int(w * s), 1), max(int(h * s), 1))
             shrunk = linear_to_srgb(cv2.resize(image_to_linear(frame), size, interpolation=cv2.INTER_AREA))
             small = torch.from_numpy(np.ascontiguousarray(shrunk, dtype=np.float32)).permute(2, 0, 1)[None]
         with torch.inference_mode():
-            out = self.model.net(small, guide_srgb=full if small is not full else None)
+            out = self.model.net(small, guide_srgb=full if small is not full and full_size else None)
             d = disparity_to_px(out.disparity_rel, float(w))[0, 0].numpy()
             e = out.exponent[0].permute(1, 2, 0).numpy()
         return np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(e, dtype=np.float32)
 
-    def _onnx(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`__call__` with the ONNX trunk and numpy (:mod:`.onnx_infer`), same resampling."""
+    def _onnx(self, frame: np.ndarray, max_pixels: int, full_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_pass` with the ONNX trunk and numpy (:mod:`.onnx_infer`), same resampling."""
         import cv2
 
         from ..color import image_to_linear, linear_to_srgb, to_float01
@@ -250,11 +298,11 @@ class Estimator:
         h, w = frame.shape[:2]
         srgb = np.ascontiguousarray(to_float01(frame), dtype=np.float32)
         small, guide = srgb, None
-        if h * w > self.max_pixels:
-            s = (self.max_pixels / (h * w)) ** 0.5
+        if h * w > max_pixels:
+            s = (max_pixels / (h * w)) ** 0.5
             size = (max(int(w * s), 1), max(int(h * s), 1))
             shrunk = linear_to_srgb(cv2.resize(image_to_linear(frame), size, interpolation=cv2.INTER_AREA))
-            small, guide = np.ascontiguousarray(shrunk, dtype=np.float32), srgb
+            small, guide = np.ascontiguousarray(shrunk, dtype=np.float32), srgb if full_size else None
         d_rel, e = self.model.net(small, guide)
         d = d_rel * np.float32(w / DISPARITY_PERCENT)
         return np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(e, dtype=np.float32)
@@ -424,6 +472,8 @@ class EstimateJob:
                "network" if self.plan.cues == ("network",) else self.plan.key()}
         if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
+        if self.estimator is not None and self.estimator.context_pixels:
+            key["context_pixels"] = self.estimator.context_pixels  # D's layout pass (caches made before it recompute)
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
                 "depth_plan": depth_record(self.plan, self.start, s.hfov_deg)}

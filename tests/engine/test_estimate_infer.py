@@ -17,7 +17,7 @@ from rvr_addon.cli import main
 from rvr_addon.errors import InputError
 from rvr_addon.estimate.cache import ClipCache, frame_path, split_channels
 from rvr_addon.estimate.infer import (
-    EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, sample_window,
+    EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, merge_context, sample_window,
 )
 from rvr_addon.estimate.train import export_weights
 from rvr_addon.estimate.unet import EstimatorNet
@@ -119,6 +119,39 @@ def test_estimator_core_shapes_tiny_frames_and_downscaled_trunk(weights):
     assert half_d.shape == full_d.shape and half_e.shape == full_e.shape
     # D is in px at the frame's width: a net running on a half-size copy returns the same units
     assert abs(float(half_d.mean()) - float(full_d.mean())) < 0.2 * abs(float(full_d.mean())) + 0.05
+
+
+def test_merge_context_takes_the_layout_of_one_and_the_detail_of_the_other():
+    """merge_context: low frequencies from the context map, high frequencies from the main one."""
+    h, w = 120, 160
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    layout = 4.0 * yy / h                                   # "nearer toward the bottom", smooth
+    detail = np.where((xx // 8 + yy // 8) % 2 == 0, 0.5, -0.5).astype(np.float32)  # an 8 px checker
+    main_d = detail + 1.0                                   # right detail, flat layout
+    merged = merge_context(main_d, layout, sigma_px=0.1 * w)
+    inner = (slice(30, 90), slice(40, 120))                 # away from the borders' reflection
+    assert np.allclose(merged[inner] - detail[inner], layout[inner], atol=0.15)
+    assert merged.dtype == np.float32 and merged.shape == (h, w)
+    # the context map at its own, smaller size gives the same layout
+    small = cv2.resize(layout, (40, 30), interpolation=cv2.INTER_AREA)
+    assert np.allclose(merge_context(main_d, small, sigma_px=0.1 * w)[inner] - detail[inner], layout[inner], atol=0.2)
+    # equal maps: nothing changes; tiny frames and sigmas below a pixel work
+    assert np.allclose(merge_context(main_d, main_d, 0.1 * w), main_d, atol=1e-5)
+    assert merge_context(np.ones((1, 1), np.float32), np.zeros((1, 1), np.float32), 0.02).shape == (1, 1)
+
+
+def test_context_pass_changes_d_only_and_can_be_turned_off(weights):
+    """Estimator's context pass (CONTEXT_PIXELS): D differs, E is the main pass's exactly;
+    context_pixels=0, or a frame no larger than the context, is one pass."""
+    model = load_estimator(weights[0])
+    frame = cv2.resize((np.random.default_rng(2).random((12, 16, 3)) * 255).astype(np.uint8), (256, 192),
+                       interpolation=cv2.INTER_CUBIC)
+    d_on, e_on = Estimator(model, context_pixels=64 * 48)(frame)
+    d_off, e_off = Estimator(model, context_pixels=0)(frame)
+    assert np.array_equal(e_on, e_off)
+    assert not np.allclose(d_on, d_off)
+    small = frame[:40, :50]
+    assert np.array_equal(Estimator(model, context_pixels=64 * 48)(small)[0], Estimator(model, context_pixels=0)(small)[0])
 
 
 def test_weights_errors_name_the_file(tmp_path, clip):

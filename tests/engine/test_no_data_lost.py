@@ -233,6 +233,29 @@ def test_max_pixels_is_part_of_the_cache_key(clip, tmp_path):
     assert again.reused == N
 
 
+def test_a_cache_made_before_the_context_pass_recomputes(clip, tmp_path):
+    """D's layout pass (infer.CONTEXT_PIXELS) is in the key: a meta.json without it (an older
+    rvr's cache) is not reused."""
+    import torch
+
+    from rvr_addon.estimate.infer import CONTEXT_PIXELS
+    from rvr_addon.estimate.train import export_weights
+    from rvr_addon.estimate.unet import EstimatorNet
+
+    torch.manual_seed(0)
+    weights = export_weights(EstimatorNet(), tmp_path / "w.pt", iterations=0, wall_time_s=0.0, training={})
+    cache = tmp_path / "cache"
+    settings = EstimateSettings(input=clip, output=cache, weights=weights, depth_method="network")
+    EstimateJob(settings).run(progress=False)
+    meta = json.loads((cache / "meta.json").read_text())
+    assert meta["context_pixels"] == CONTEXT_PIXELS
+    del meta["context_pixels"]
+    (cache / "meta.json").write_text(json.dumps(meta))
+    again = EstimateJob(settings)
+    again.run(progress=False)
+    assert (again.computed, again.reused) == (N, 0)
+
+
 def test_an_npy_stack_is_read_as_one_map_per_frame(tmp_path):
     stack = np.arange(5 * H * W, dtype=np.float32).reshape(5, H, W)
     np.save(tmp_path / "stack.npy", stack)
