@@ -232,6 +232,18 @@ def merge_context(d: np.ndarray, d_context: np.ndarray, sigma_px: float) -> np.n
     return np.ascontiguousarray(d + low, dtype=np.float32)
 
 
+def match_spread(d: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``d`` mapped affinely (a positive scale about its median) onto ``reference``'s median and
+    5-95 % spread (read on every 4th pixel each way): the layout of ``d`` with the magnitude of
+    ``reference`` (DESIGN px). A flat ``d`` is only shifted; the scale is bounded to [1/4, 4]."""
+    sub_d, sub_r = d[::4, ::4].ravel(), reference[::4, ::4].ravel()
+    lo_d, med_d, hi_d = np.percentile(sub_d, (5, 50, 95))
+    lo_r, med_r, hi_r = np.percentile(sub_r, (5, 50, 95))
+    spread_d, spread_r = float(hi_d - lo_d), float(hi_r - lo_r)
+    scale = float(np.clip(spread_r / spread_d, 0.25, 4.0)) if spread_d > 1e-6 else 1.0
+    return np.ascontiguousarray(med_r + scale * (d - med_d), dtype=np.float32)
+
+
 class Estimator:
     """Per-frame RGBD-HDR inference (the pure core of ``rvr estimate``).
 
@@ -239,8 +251,8 @@ class Estimator:
     shrunk copy (linear-light area resampling); the grid is sliced with the full-resolution
     luma and E is gated at full resolution, so edges stay sharp. None: the size the weights
     ask for (:func:`preferred_max_pixels`). context_pixels: D's layout from a second pass at
-    this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`); 0 turns it off. E always comes
-    from the main pass alone.
+    this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`), given the main pass's median and
+    spread (:func:`match_spread`); 0 turns it off. E always comes from the main pass alone.
     """
 
     def __init__(self, model: LoadedModel, max_pixels: int | None = None,
@@ -258,7 +270,8 @@ class Estimator:
         d, e = self._pass(frame, self.max_pixels)
         if 0 < self.context_pixels < min(self.max_pixels, h * w):
             d_context, _e = self._pass(frame, self.context_pixels, full_size=False)
-            d = merge_context(d, d_context, CONTEXT_SIGMA * w)
+            # the layout of the context pass, the magnitude the weights were trained at (the main pass's)
+            d = match_spread(merge_context(d, d_context, CONTEXT_SIGMA * w), d)
         return d, e
 
     def _pass(self, frame: np.ndarray, max_pixels: int, full_size: bool = True) -> tuple[np.ndarray, np.ndarray]:

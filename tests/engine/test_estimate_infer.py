@@ -17,7 +17,8 @@ from rvr_addon.cli import main
 from rvr_addon.errors import InputError
 from rvr_addon.estimate.cache import ClipCache, frame_path, split_channels
 from rvr_addon.estimate.infer import (
-    EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, merge_context, sample_window,
+    EstimateJob, EstimateSettings, Estimator, fit_two_points, load_estimator, match_spread, merge_context,
+    sample_window,
 )
 from rvr_addon.estimate.train import export_weights
 from rvr_addon.estimate.unet import EstimatorNet
@@ -138,6 +139,19 @@ def test_merge_context_takes_the_layout_of_one_and_the_detail_of_the_other():
     # equal maps: nothing changes; tiny frames and sigmas below a pixel work
     assert np.allclose(merge_context(main_d, main_d, 0.1 * w), main_d, atol=1e-5)
     assert merge_context(np.ones((1, 1), np.float32), np.zeros((1, 1), np.float32), 0.02).shape == (1, 1)
+
+
+def test_match_spread_keeps_the_layout_and_takes_the_reference_magnitude():
+    rng = np.random.default_rng(3)
+    layout = rng.normal(size=(40, 60)).astype(np.float32)
+    reference = (5.0 + 3.0 * rng.normal(size=(40, 60))).astype(np.float32)
+    out = match_spread(layout - 2.0, reference)  # a scale of 3 (bounded to [1/4, 4])
+    assert np.corrcoef(out.ravel(), layout.ravel())[0, 1] > 0.999
+    assert abs(float(np.median(out[::4, ::4])) - float(np.median(reference[::4, ::4]))) < 1e-4  # read on a 1/4 grid
+    spread = lambda a: float(np.subtract(*np.percentile(a[::4, ::4], (95, 5))))
+    assert spread(out) == pytest.approx(spread(reference), rel=1e-4)
+    flat = match_spread(np.full((8, 8), 2.0, np.float32), reference)
+    assert np.allclose(flat, np.median(reference[::4, ::4]))
 
 
 def test_context_pass_changes_d_only_and_can_be_turned_off(weights):
