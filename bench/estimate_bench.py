@@ -25,7 +25,9 @@ The whole depth system (``rvr estimate --depth-method auto``, the default) on RE
   ``estimate.<size>.s_per_frame`` measured before the depth system);
 * per cue, timed inside the stream (the calls of DepthStream's parts): ``estimate.people.<size>``,
   ``estimate.fuse.<size>`` (interview), ``estimate.parallax.<size>`` (kivy_cityCC0.mpg, a moving
-  camera, where auto adds parallax; its whole auto run is ``estimate.auto_moving.<size>``).
+  camera, where auto adds parallax; its whole auto run is ``estimate.auto_moving.<size>``). With
+  the parallax cue on, the network and the people cue run on DepthStream's worker thread while the
+  parallax cue works, so on the moving clip the parts overlap and add up to more than the total.
 
 The last line of stdout is the JSON of DESIGN.md's keys.
 """

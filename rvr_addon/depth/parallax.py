@@ -10,7 +10,9 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
    ``min_parallax_px`` means no baseline. Otherwise the tracks' essential matrix gives the
    rotation, and the median parallax left after removing it (px) measures the baseline. Per
    side (behind, ahead) the nearest candidate reaching ``target_parallax_px`` is chosen (else the
-   one with the most), up to ``per_side`` per side.
+   one with the most), up to ``per_side`` per side; behind, an earlier frame that chose t as its
+   neighbour ahead is taken first when its tracks reach the target from t too (the pair's flows
+   and pose are then computed once for both frames).
 3. **Pair geometry.** Dense DIS flow both ways (:mod:`rvr_addon.temporal.flow`, cached per pair
    while both frames are in the window); the relative pose from flow correspondences sampled on
    a grid where the flow is forward-backward consistent (``cv2.findEssentialMat`` with RANSAC,
@@ -411,12 +413,15 @@ def msac_score(E: np.ndarray, p1: np.ndarray, p2: np.ndarray, K: np.ndarray, thr
 def _in_front(a: np.ndarray, b: np.ndarray, R: np.ndarray, T: np.ndarray) -> int:
     """How many ray pairs (3, N) normalised triangulate in front of both cameras."""
     Ra = R.astype(np.float32) @ a
-    Tf = T.astype(np.float32).reshape(3, 1)
-    c1 = np.cross(b, Ra, axis=0)
-    c2 = np.cross(b, Tf, axis=0)
+    tx, ty, tz = T.astype(np.float32).ravel()
+    bx, by, bz = b[0], b[1], b[2]
+    ax, ay, az = Ra[0], Ra[1], Ra[2]
+    # c1 = b x Ra, c2 = b x T (written out: np.cross's axis handling costs more than the products)
+    c1x, c1y, c1z = by * az - bz * ay, bz * ax - bx * az, bx * ay - by * ax
+    c2x, c2y, c2z = by * tz - bz * ty, bz * tx - bx * tz, bx * ty - by * tx
     with np.errstate(divide="ignore", invalid="ignore"):
-        z = -np.sum(c1 * c2, 0) / np.sum(c1 * c1, 0)
-        z2 = z * Ra[2] + Tf[2, 0]
+        z = -(c1x * c2x + c1y * c2y + c1z * c2z) / (c1x * c1x + c1y * c1y + c1z * c1z)
+        z2 = z * az + tz
     return int(np.sum((z > 0) & (z2 > 0)))
 
 
@@ -559,6 +564,16 @@ def _median_stack(values: np.ndarray) -> np.ndarray:
     return m
 
 
+def group_median(keys: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Median of ``values`` (N,) per distinct key of ``keys`` (N,) (non-empty): (the sorted
+    distinct keys, their medians), as ``np.median`` of each group gives them, in one sort."""
+    order = np.lexsort((values, keys))
+    k, v = keys[order], values[order]
+    uniq, start, count = np.unique(k, return_index=True, return_counts=True)
+    lo, hi = start + (count - 1) // 2, start + count // 2
+    return uniq, 0.5 * (v[lo] + v[hi])
+
+
 def _median_ratio(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float | None:
     """Median of a / b over ``mask`` where both are finite and positive (None: < 50 pixels)."""
     ok = mask & np.isfinite(a) & np.isfinite(b) & (a > 0) & (b > 0)
@@ -602,13 +617,14 @@ class ParallaxEstimator:
     refine_focal: without K, pick the focal length from the clip's first frames
     (:func:`refine_focal`) instead of keeping the 66 deg guess; flow_finest_scale: the finest
     pyramid level DIS refines its flow to (0: the analysis size itself; None: the preset's own,
-    1 for "medium", half the analysis size; see :class:`PairFlow`).
+    1 for "medium", half the analysis size; see :class:`PairFlow`); share_pairs: behind, prefer
+    an earlier frame whose pair with t is computed already (:meth:`_Run._shared_behind`).
     """
 
     def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
                  per_side: int = 1, target_parallax_px: float = 5.0, min_parallax_px: float = 0.3,
                  preset: str = "medium", refine_focal: bool = True,
-                 flow_finest_scale: int | None = FLOW_FINEST_SCALE) -> None:
+                 flow_finest_scale: int | None = FLOW_FINEST_SCALE, share_pairs: bool = True) -> None:
         if window < 1:
             raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
         self.analysis_long_side = int(analysis_long_side)
@@ -620,6 +636,7 @@ class ParallaxEstimator:
         self.preset = preset
         self.refine_focal = bool(refine_focal)
         self.flow_finest_scale = flow_finest_scale
+        self.share_pairs = bool(share_pairs)
 
     # ---------------------------------------------------------------- public API
 
@@ -934,11 +951,7 @@ class _Run:
             q_all.append(1.0 / z[good])
         if not ids_all:
             return None
-        ids, q = np.concatenate(ids_all), np.concatenate(q_all)
-        order = np.argsort(ids, kind="stable")
-        ids, q = ids[order], q[order]
-        uniq, start = np.unique(ids, return_index=True)
-        qm = np.array([np.median(v) for v in np.split(q, start[1:])])
+        uniq, qm = group_median(np.concatenate(ids_all), np.concatenate(q_all))
         if len(uniq) < MIN_SCALE_TRACKS:
             return None
         _, it, _ = np.intersect1d(t.ids, uniq, assume_unique=True, return_indices=True)
@@ -954,6 +967,12 @@ class _Run:
         chosen: list[tuple[int, float]] = []
         best = 0.0
         for side in (-1, 1):
+            if side < 0 and self.est.share_pairs:
+                shared, h_max = self._shared_behind(buf, c)
+                best = max(best, h_max)
+                if shared:
+                    chosen += shared
+                    continue
             scored = []
             for k in range(1, self.est.window + 1):
                 j = c + side * k
@@ -969,6 +988,29 @@ class _Run:
             pick = good[:self.est.per_side] if good else sorted(scored, key=lambda x: -x[1])[:self.est.per_side]
             chosen += pick
         return chosen, best
+
+    def _shared_behind(self, buf: list[_Frame], c: int) -> tuple[list[tuple[int, float]], float]:
+        """t's behind neighbours whose pair with t is computed already (an earlier frame chose t as
+        its neighbour ahead: the flows both ways and the pose are reused) and whose tracks reach
+        the target parallax as seen from t, nearest first: per_side of them, else none (the usual
+        scan decides). Also the largest homography residual (px) seen."""
+        t = buf[c]
+        out: list[tuple[int, float]] = []
+        best = 0.0
+        for k in range(1, self.est.window + 1):
+            j = c - k
+            if j < 0:
+                break
+            p = self.pairs.get((buf[j].index, t.index))
+            if p is None or p.R is None or p.parallax_px < MIN_DENSE_PARALLAX_PX:
+                continue
+            h, par = self.track_score(t, buf[j])
+            best = max(best, h)
+            if h >= self.est.min_parallax_px and par >= self.est.target_parallax_px:
+                out.append((j, par))
+                if len(out) >= self.est.per_side:
+                    return out, best
+        return [], best
 
     def _add_map(self, maps: list, t: _Frame, buf: list[_Frame], j: int) -> None:
         p = self.pair(t, buf[j])

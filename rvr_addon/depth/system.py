@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable, Iterable, Iterator
 
@@ -31,6 +32,9 @@ log = logging.getLogger(__name__)
 
 PROBE_FRAMES = 48
 """Frames of the range the ``auto`` check for camera translation looks at."""
+AHEAD_FRAMES = 2
+"""Frames whose network and people cue a :class:`DepthStream` runs ahead, on a worker thread, while
+the parallax cue works (each waits with its D, E and people map of the full frame)."""
 
 
 @dataclass
@@ -179,13 +183,18 @@ class DepthStream:
 
     network: the estimator (D and E of one frame). The parallax cue looks ``window`` frames
     ahead (and holds back a clip's first maps until its gate can judge them), so frames are held
-    in a bounded queue (at most window + GATE_HOLD_FRAMES + 1 full frames).
+    in a bounded queue (at most window + GATE_HOLD_FRAMES + 1 full frames). While the parallax cue
+    works on the main thread, the network and the people cue of the next AHEAD_FRAMES frames of
+    that queue run on one worker thread (``overlap``; the parallax cue's NumPy work leaves a
+    core idle); each frame's answers are the same either way.
     """
 
-    def __init__(self, plan: DepthPlan, size: tuple[int, int], network: Network) -> None:
-        """size: the clip's (width, height) in px."""
+    def __init__(self, plan: DepthPlan, size: tuple[int, int], network: Network, overlap: bool = True) -> None:
+        """size: the clip's (width, height) in px; overlap: run the network and the people cue
+        on a worker thread alongside the parallax cue (when it runs)."""
         self.plan = plan
         self.network = network
+        self.overlap = bool(overlap)
         self.fuser = DepthFuser(size[0], plan.fusion)
         self.people = None
         self.notes: list[str] = []
@@ -226,26 +235,53 @@ class DepthStream:
         """(frame, D, E, FusedDepth) per input frame, in order."""
         if self.parallax is None:
             for frame in frames:
-                yield (frame, *self._one(frame, None))
+                yield (frame, *self._fuse(frame, self._frame_cues(frame), None))
             return
-        queue: deque = deque()
-        for cue in self._parallax_maps(frames, queue):
-            frame = queue.popleft()
-            yield (frame, *self._one(frame, cue))
+        queue: deque = deque()  # frames the parallax cue has read and not yet answered, oldest first
+        ahead: deque = deque()  # futures of the per-frame cues of queue[0], queue[1], ...
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rvr-depth") if self.overlap else None
 
-    def _one(self, frame: np.ndarray, parallax: CueMap | None) -> tuple[np.ndarray, np.ndarray, FusedDepth]:
+        def top_up() -> None:
+            while pool is not None and len(ahead) < min(AHEAD_FRAMES, len(queue)):
+                ahead.append(pool.submit(self._frame_cues, queue[len(ahead)]))
+
+        def source() -> Iterator[np.ndarray]:
+            for f in frames:
+                top_up()
+                yield f
+
+        try:
+            for cue in self._parallax_maps(source(), queue):
+                frame = queue.popleft()
+                own = ahead.popleft().result() if ahead else self._frame_cues(frame)
+                top_up()
+                yield (frame, *self._fuse(frame, own, cue))
+        finally:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+
+    def _frame_cues(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray, CueMap | None]:
+        """The cues of one frame that need no other frame: the network's (D, E) and the people cue
+        (None without it). Runs on the worker thread when the parallax cue runs (one task at a
+        time, in frame order: a people model that fails is switched off for the frames after)."""
         d, e = self.network(frame)
-        cues = [] if parallax is None else [parallax]
+        people = None
         if self.people is not None:
             from .people import PeopleModelError
 
             try:
-                cues.append(self.people(frame).cue)
+                people = self.people(frame).cue
             except PeopleModelError as ex:
                 log.warning("depth: the people cue is off from here on (%s)", str(ex).splitlines()[0])
                 self.notes.append(f"people cue off: {str(ex).splitlines()[0]}")
                 self.people.close()
                 self.people = None
+        return d, e, people
+
+    def _fuse(self, frame: np.ndarray, own: tuple[np.ndarray, np.ndarray, CueMap | None],
+              parallax: CueMap | None) -> tuple[np.ndarray, np.ndarray, FusedDepth]:
+        d, e, people = own
+        cues = ([] if parallax is None else [parallax]) + ([] if people is None else [people])
         fused = self.fuser(frame, d, cues)
         return fused.disparity, e, fused
 

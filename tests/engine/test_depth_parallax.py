@@ -425,3 +425,77 @@ def test_real_tum_rotation_clip_hands_the_fusion_nothing():
     maps = list(ParallaxEstimator().maps(clip.rgb_frames(0, 16)))
     assert len(maps) == 16
     assert max(float((m.confidence > 0.5).mean()) for m in maps) == 0.0
+
+
+def _buffered(frames, **kw):
+    """A parallax run of ParallaxEstimator(**kw) with every frame added (tracks only): (run, buffer)."""
+    from rvr_addon.depth.parallax import _Run
+
+    run = _Run(ParallaxEstimator(**kw))
+    buf = []
+    for i, f in enumerate(frames):
+        buf.append(run.add(i, f, buf[-1] if buf else None))
+    return run, buf
+
+
+def _count_calls(run, attr: str) -> list:
+    """Wrap run.<attr> (a flow callable) so each call is recorded; returns the record."""
+    calls, flow = [], getattr(run, attr)
+
+    def counted(a, b):
+        calls.append((a.shape, b.shape))
+        return flow(a, b)
+
+    setattr(run, attr, counted)
+    return calls
+
+
+def test_a_pair_used_again_from_its_other_frame_reuses_its_flows_and_pose():
+    """The pair cache: frame b asking for (b, a) after frame a computed (a, b) gets a's flows
+    swapped (the very arrays), the inverse pose, and costs no DIS call."""
+    frames, _ = translating_clip(n=8)
+    run, buf = _buffered(frames, window=6)
+    calls = _count_calls(run, "dis")
+    ab = run.pair(buf[1], buf[6])
+    assert len(calls) == 2  # f_ab and f_ba
+    ba = run.pair(buf[6], buf[1])
+    assert len(calls) == 2
+    assert ba.f_ab is ab.f_ba and ba.f_ba is ab.f_ab and ba.fb_a is ab.fb_b
+    np.testing.assert_allclose(ba.R, ab.R.T)
+    np.testing.assert_allclose(ba.T, -ab.R.T @ ab.T)
+    assert ba.parallax_px == ab.parallax_px
+
+
+def test_a_frame_takes_the_behind_neighbour_an_earlier_frame_already_paired_it_with():
+    """An earlier frame (0) chose frame 6 as its neighbour ahead: frame 6 takes 0 as its neighbour
+    behind (its tracks reach the target parallax there too) instead of the nearest frame that does
+    (3), so the pair's flows are computed once for both frames; without ``share_pairs`` the scan
+    alone decides."""
+    frames, _ = translating_clip(n=9)
+    picks = {}
+    for share in (False, True):
+        run, buf = _buffered(frames, window=6, share_pairs=share)
+        run.pair(buf[0], buf[6])
+        calls = _count_calls(run, "dis")
+        chosen, _ = run._choose(buf, 6)
+        picks[share] = [j for j, _ in chosen if j < 6]
+        if share:
+            p = run.pair(buf[6], buf[0])
+            assert not calls and p.R is not None  # no DIS: the flows of (0, 6)
+    assert picks == {False: [3], True: [0]}  # measured: track parallax 5.0 px at 3, 10.8 px at 0
+    # a computed pair whose tracks do not reach the target from the later frame is not taken:
+    # (1, 6) has 1.9 px of track parallax as frame 6 sees it
+    run, buf = _buffered(frames, window=6)
+    run.pair(buf[1], buf[6])
+    assert [j for j, _ in run._choose(buf, 6)[0] if j < 6] == [3]
+
+
+def test_group_median_is_numpys_median_of_each_group():
+    from rvr_addon.depth.parallax import group_median
+
+    rng = np.random.default_rng(4)
+    keys = rng.integers(0, 60, 700)
+    values = rng.random(700)
+    uniq, med = group_median(keys, values)
+    np.testing.assert_array_equal(uniq, np.unique(keys))
+    np.testing.assert_array_equal(med, [np.median(values[keys == k]) for k in uniq])  # bit for bit

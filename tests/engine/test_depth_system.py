@@ -282,3 +282,56 @@ def test_a_reused_auto_run_reads_each_frame_once_and_decodes_none(still_clip, tm
     again = run(still_clip, cache, weights=weights)
     assert (again.computed, again.reused) == (0, 6)
     assert sorted(reads.values()) == [1] * 6, reads
+
+
+class FailingPeople(FakePeople):
+    """The fake people cue whose model fails on its third frame (as a broken install would)."""
+
+    def __init__(self, hfov_deg=66.0, **kw):
+        super().__init__(hfov_deg, **kw)
+        self.calls = 0
+
+    def __call__(self, frame):
+        self.calls += 1
+        if self.calls == 3:
+            raise people_mod.PeopleModelError("the fake model broke")
+        return super().__call__(frame)
+
+
+@pytest.mark.parametrize("people", [FakePeople, FailingPeople])
+def test_the_cues_run_ahead_on_a_worker_and_give_the_same_depth(monkeypatch, people):
+    """With the parallax cue on, the network and the people cue of the next frames run on a worker
+    thread (``overlap``): every frame's D, E and cue use are those of running them in turn, a
+    people model that fails is switched off for the frames after it with one note, and at most
+    AHEAD_FRAMES frames wait with their answers."""
+    frames, _ = translating_clip(n=N_MOVING)
+    monkeypatch.setattr(people_mod, "PeopleDetector", people)
+    plan = DepthPlan("auto", ("parallax", "people", "network"), hfov_deg=60.0, hfov_given=True)
+    yielded, ahead = [0], []
+
+    def network(frame):
+        ahead.append(len(ahead) - yielded[0])  # earlier frames asked for and not yet handed out
+        d = np.full(frame.shape[:2], 1.0 + float(frame.mean()) / 255.0, np.float32)
+        return d, np.repeat(d[..., None], 3, 2)
+
+    runs = {}
+    for overlap in (False, True):
+        stream = system.DepthStream(plan, (frames[0].shape[1], frames[0].shape[0]), network, overlap=overlap)
+        out, yielded[0] = [], 0
+        ahead.clear()
+        for f, d, e, fused in stream.frames(iter(frames)):
+            out.append((d, e))
+            yielded[0] += 1
+        runs[overlap] = (out, stream.usage(), list(stream.notes))
+        stream.close()
+        assert max(ahead) <= (system.AHEAD_FRAMES if overlap else 0)  # the frame being fused + AHEAD_FRAMES
+    (a, used_a, notes_a), (b, used_b, notes_b) = runs[False], runs[True]
+    assert len(a) == len(b) == N_MOVING and used_a == used_b and notes_a == notes_b
+    for i, ((da, ea), (db, eb)) in enumerate(zip(a, b)):
+        np.testing.assert_array_equal(da, db, err_msg=f"frame {i}")
+        np.testing.assert_array_equal(ea, eb, err_msg=f"frame {i}")
+    if people is FailingPeople:
+        assert used_b["people"] == 2 and len(notes_b) == 1 and "the fake model broke" in notes_b[0]
+    else:
+        assert used_b["people"] == N_MOVING and not notes_b
+    assert used_b["parallax"] > 0
