@@ -15,7 +15,9 @@ close to a person), gives each person a distance ``S = focal_px(W) * FACE_WIDTH_
 (pinhole camera of :data:`~rvr_addon.depth.cues.DEFAULT_HFOV_DEG` unless told otherwise) and
 returns a :class:`~rvr_addon.depth.cues.CueMap` named ``people``: metric inverse depth (1/m) with a
 gentle relief (the face a few cm nearer than the body's silhouette), NaN outside people,
-confidence = the person's soft matte. Where people overlap, the nearer one wins.
+confidence = the person's soft matte. Where people overlap, the nearer one wins. A detected face
+:mod:`~rvr_addon.depth.face_check` does not confirm (no person matte covers its box and the face mesh
+finds no face in it: a street sign) is no person.
 
 All models run at an analysis size (long side :data:`ANALYSIS_LONG_SIDE` px); masks are upsampled
 to the frame's size once, so a 4K frame costs about what a 720p one does (plus the upsampling).
@@ -41,6 +43,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
+from . import face_check
 from .cues import DEFAULT_HFOV_DEG, CueMap, focal_px
 
 MEDIAPIPE_PIN = "mediapipe==0.10.14"
@@ -327,6 +330,10 @@ class PeopleDetector:
         matte = np.clip(np.nan_to_num(np.asarray(matte, np.float32)), 0.0, 1.0) if matte is not None \
             else np.zeros((ah, aw), np.float32)
         faces = self._faces(models, small, frame)
+        k = aw / w  # full-size px -> matte px; a box no person matte covers (a sign) is no face: face_check
+        faces = [faces[i] for i in face_check.confirmed_faces(
+            [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
+             for f in faces], matte, lambda i: faces[i]["mesh"])]
         layers = self._split(matte, faces, (h, w)) if faces else []
         info = {"people": len(layers), "distances_m": sorted(round(lay.person.distance_m, 3) for lay in layers),
                 "hfov_deg": self.hfov_deg, "face_width_m": FACE_WIDTH_M}
@@ -348,10 +355,11 @@ class PeopleDetector:
         faces.sort(key=lambda f: -f["box_w"])
         faces = faces[:self.max_faces]
         for face in faces:
-            face["width"], face["mouth"] = face["box_w"] * BOX_TO_FACE_WIDTH, None
+            face["width"], face["mouth"], face["mesh"] = face["box_w"] * BOX_TO_FACE_WIDTH, None, False
             if "mesh" in models:
                 points = face_landmarks(models["mesh"], frame, face["box"])
                 if points is not None:
+                    face["mesh"] = True
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
             face["distance"] = float(np.clip(focal_px(w, self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))

@@ -250,7 +250,7 @@ def test_a_close_up_the_full_range_model_misses_is_found_by_the_short_range_one(
             self.calls += 1
             return type("R", (), {"detections": self.dets})()
 
-    faces = mediapipe_face.MediaPipeFaces(mesh=False)
+    faces = mediapipe_face.MediaPipeFaces(mesh=False, verify=False)  # face_check: test_laaf_face_check.py
     assert faces.close_range and faces.close_min_score == pytest.approx(0.75)
     full, close = Model([]), Model([Det(0.9, (0.25, 0.1, 0.5, 0.8)), Det(0.6, (0.0, 0.0, 0.1, 0.1))])
     faces._models = {"faces": full, "faces_close": close}

@@ -1,6 +1,8 @@
 """Face detector H_face: MediaPipe's full-range face detector where ``mediapipe`` imports (the
 default: it finds profiles and faces of a few dozen px that HOG misses; a close-up it misses, the
-short-range model looks for: ``mediapipe_face``), else dlib's HOG frontal
+short-range model looks for; a box no person is segmented around and the face mesh does not
+confirm, such as a street sign, is dropped: ``mediapipe_face``, ``depth.face_check``; its models
+are built once per process), else dlib's HOG frontal
 face detector (as the paper used dlib), else OpenCV's Haar cascades (frontal + profile, shipped in
 ``cv2.data.haarcascades``). ``backend='auto'`` takes the first that loads and logs one line saying
 which runs; 'mediapipe', 'dlib' and 'haar' ask for one (RuntimeError naming the fix if missing).
@@ -48,6 +50,19 @@ def _dlib_detector():
     return dlib.get_frontal_face_detector()
 
 
+@functools.lru_cache(maxsize=1)
+def _mediapipe_faces():
+    """MediaPipe's face models for the face backend (full and short range, the person segmentation
+    that confirms a box, the mesh when one must), built once per process: a job's clip reading, its
+    detector and each shot's first target without a face box would otherwise each load them again
+    (PeopleModelError is not cached: a later call tries again). Frames are processed one at a time."""
+    from .mediapipe_face import MediaPipeFaces
+
+    faces = MediaPipeFaces(mesh=False)
+    faces.load()
+    return faces
+
+
 BACKENDS = ("auto", "mediapipe", "dlib", "haar")
 _announced: set[str] = set()
 
@@ -72,14 +87,14 @@ class FaceBackend:
         self.dlib_threshold = dlib_threshold
         self.kind = backend
         self.mediapipe = None
+        self.rejected = 0  # MediaPipe boxes face_check did not confirm (not faces)
         why = ""
         if backend in ("auto", "mediapipe"):
-            from .mediapipe_face import MediaPipeFaces, mediapipe_importable
+            from .mediapipe_face import mediapipe_importable
 
             if mediapipe_importable() or backend == "mediapipe":
                 try:
-                    self.mediapipe = MediaPipeFaces(mesh=False)
-                    self.mediapipe.load()
+                    self.mediapipe = _mediapipe_faces()
                     self.kind = "mediapipe"
                 except Exception as exc:  # PeopleModelError: not importable / a model does not load
                     self.mediapipe = None
@@ -118,7 +133,9 @@ class FaceBackend:
     def _mediapipe(self, rgb: np.ndarray) -> list[Box]:
         # MediaPipe finds faces well below dlib's 80 px window: keep boxes of >= 8 px (a 32 px face
         # at 4x the analysis size, where the face mesh still reads a mouth on the native frame)
+        before = self.mediapipe.rejected
         boxes = [b for b, _ in self.mediapipe.detect(rgb)]
+        self.rejected += self.mediapipe.rejected - before
         return [b for b in _nms(boxes) if min(b[2], b[3]) >= min(8.0, self.min_face_px * 0.6)]
 
     def detect(self, gray: np.ndarray) -> list[Box]:
@@ -255,4 +272,5 @@ class FaceDetector(FocusDetector):
     def metrics(self) -> dict:
         return {"backend": self.backend.kind, "detections": self._detections,
                 "frames_with_faces": self._frames_with_faces, "face_tracks": self._next_id,
+                "boxes_not_faces": self.backend.rejected,
                 "s_per_detection": self._seconds / max(self._detections, 1)}

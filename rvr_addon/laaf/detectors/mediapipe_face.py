@@ -14,6 +14,13 @@ model (``model_selection=0``, made for faces within ~2 m of the camera) looks ag
 model run on the frames without a face only. Its boxes must score ``close_min_score`` (0.75):
 on textures it finds "faces" at 0.6.
 
+Both models' boxes are checked (``verify``, ``rvr_addon.depth.face_check``, as the people cue
+checks its own): a box is a face when MediaPipe's person segmentation covers it, or else when the
+face mesh finds a face in it (on the demo's street a sign scored 0.67, the real cyclist beside it
+0.61-0.71; the sign has no person around it). The segmentation runs once per detection frame with
+a box, the mesh only for a box the segmentation rejects; a frame whose full-range boxes are all
+rejected gets the short-range model's look.
+
 The mesh runs on the *native* frame where the caller has it (``AnalysisFrame.native``, present
 while a frame is measured): at a 320 px analysis width a face of an interview is ~50 px and its
 lip gap a few px; at 720p it is four times that. Boxes come and go in analysis px.
@@ -30,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from ...depth import face_check
 from ..nft import Box
 
 
@@ -47,15 +55,19 @@ class MediaPipeFaces:
 
     min_score: the face detector's threshold. detect / mesh: which models load (first use).
     close_range: where the full-range model finds no face, the short-range one looks again
-    (module docstring), keeping its boxes of score >= close_min_score.
+    (module docstring), keeping its boxes of score >= close_min_score. verify: keep only the
+    boxes ``face_check`` confirms (person segmentation, else the face mesh); ``rejected`` counts
+    the boxes dropped so far.
     """
 
     def __init__(self, min_score: float = 0.5, detect: bool = True, mesh: bool = True,
-                 close_range: bool = True, close_min_score: float = 0.75) -> None:
+                 close_range: bool = True, close_min_score: float = 0.75, verify: bool = True) -> None:
         self.min_score = float(min_score)
         self.close_min_score = float(close_min_score)
         self._want = {"faces": detect, "mesh": mesh}
         self.close_range = bool(close_range) and detect
+        self.verify = bool(verify) and detect
+        self.rejected = 0
         self._models: dict[str, Any] | None = None
 
     def load(self) -> dict[str, Any]:
@@ -65,7 +77,7 @@ class MediaPipeFaces:
         # the people cue's import: it stubs matplotlib where Blender's Python lacks it
         from ...depth import people
 
-        models = people.open_models("LAAF's MediaPipe faces", segment=False,
+        models = people.open_models("LAAF's MediaPipe faces", segment=self.verify,
                                     faces=self.min_score if self._want["faces"] else None, mesh=self._want["mesh"])
         if self.close_range:
             try:
@@ -97,14 +109,42 @@ class MediaPipeFaces:
 
     def detect(self, rgb: np.ndarray) -> list[tuple[Box, float]]:
         """Face boxes (x, y, w, h) px of an (H, W, 3) uint8 RGB frame with their scores: the
-        full-range model's, or where it finds none the short-range model's (``close_range``)."""
+        full-range model's, or where it finds none the short-range model's (``close_range``);
+        with ``verify`` only the boxes ``face_check`` confirms."""
         models = self.load()
         rgb = np.ascontiguousarray(rgb)
-        out = self._boxes(models["faces"].process(rgb), rgb.shape)
+        matte: list[np.ndarray | None] = []  # the frame's person matte, segmented once when needed
+        out = self._confirmed(self._boxes(models["faces"].process(rgb), rgb.shape), rgb, matte)
         if not out and "faces_close" in models:
-            out = [(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
-                   if score >= self.close_min_score]
+            out = self._confirmed([(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
+                                   if score >= self.close_min_score], rgb, matte)
         return out
+
+    def _confirmed(self, found: list[tuple[Box, float]], rgb: np.ndarray,
+                   matte: list[np.ndarray | None]) -> list[tuple[Box, float]]:
+        """The boxes of ``found`` that face_check confirms (all without ``verify``); ``matte``
+        caches the frame's person segmentation (empty: not computed yet)."""
+        if not self.verify or not found:
+            return found
+        models = self.load()
+        if not matte:
+            seg = models["segment"].process(rgb).segmentation_mask
+            matte.append(None if seg is None else np.clip(np.nan_to_num(np.asarray(seg, np.float32)), 0.0, 1.0))
+        boxes = [b for b, _ in found]
+        kept = face_check.confirmed_faces(boxes, matte[0], lambda i: self._mesh_finds(rgb, boxes[i]))
+        self.rejected += len(found) - len(kept)
+        return [found[i] for i in kept]
+
+    def _mesh_finds(self, rgb: np.ndarray, box: Box) -> bool:
+        """Whether the face mesh finds a face whose nose tip lies in box (x, y, w, h px of rgb);
+        the mesh loads here on first use when ``mesh`` did not load it."""
+        from ...depth import people
+
+        models = self.load()
+        if "mesh" not in models:
+            models["mesh"] = people.open_models("LAAF's MediaPipe faces", segment=False, faces=None, mesh=True)["mesh"]
+        x, y, w, h = box
+        return people.face_landmarks(models["mesh"], rgb, (x, y, x + w, y + h)) is not None
 
     @staticmethod
     def _boxes(result: Any, shape: tuple[int, ...]) -> list[tuple[Box, float]]:
