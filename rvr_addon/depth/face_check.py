@@ -41,14 +41,34 @@ def person_cover(matte: np.ndarray | None, box: Box) -> float:
     return float(np.mean(matte[y0:y1, x0:x1]))
 
 
+FOLLOW_FRAMES = 3
+"""A face box confirmed on one of the last this many frames vouches for a box that follows it
+(:func:`follows`): a real face whose person matte and mesh both fail on a frame (motion blur, a
+monitor hiding the body: TUM fr1/rpy's man, matte cover 0.0-0.13 on 4 of his 9 frames) stays a face,
+so the person layer does not blink; a sign is never confirmed, so it never follows anything."""
+
+
+def follows(box: Box, earlier: Box) -> bool:
+    """Whether ``box`` (x, y, w, h) continues ``earlier``'s face: its centre within 0.75 of the
+    earlier box's size of the earlier centre on each axis, and its size within 2x of it."""
+    cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+    ex, ey = earlier[0] + earlier[2] / 2, earlier[1] + earlier[3] / 2
+    size, esize = max(box[2], box[3]), max(earlier[2], earlier[3])
+    if size <= 0 or esize <= 0 or not 0.5 <= size / esize <= 2.0:
+        return False
+    return abs(cx - ex) <= 0.75 * esize and abs(cy - ey) <= 0.75 * esize
+
+
 def confirmed_faces(boxes: Sequence[Box], matte: np.ndarray | None,
                     mesh_finds: Callable[[int], bool] | None = None,
-                    min_cover: float = PERSON_MIN_COVER) -> list[int]:
+                    min_cover: float = PERSON_MIN_COVER, recent: Sequence[Box] = ()) -> list[int]:
     """Indices of the face boxes (x, y, w, h, px of ``matte``) that are faces: the person matte
     covers ``min_cover`` of the box, or ``mesh_finds(i)`` says the face mesh finds a face in box i
-    (asked only for boxes the matte does not cover; None: no mesh)."""
+    (asked only for boxes the matte does not cover; None: no mesh), or the box :func:`follows` one
+    of ``recent`` (the faces confirmed on the last FOLLOW_FRAMES frames, same px)."""
     kept = []
     for i, box in enumerate(boxes):
-        if person_cover(matte, box) >= min_cover or (mesh_finds is not None and mesh_finds(i)):
+        if (person_cover(matte, box) >= min_cover or any(follows(box, r) for r in recent)
+                or (mesh_finds is not None and mesh_finds(i))):
             kept.append(i)
     return kept

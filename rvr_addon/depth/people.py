@@ -17,7 +17,8 @@ returns a :class:`~rvr_addon.depth.cues.CueMap` named ``people``: metric inverse
 gentle relief (the face a few cm nearer than the body's silhouette), NaN outside people,
 confidence = the person's soft matte. Where people overlap, the nearer one wins. A detected face
 :mod:`~rvr_addon.depth.face_check` does not confirm (no person matte covers its box and the face mesh
-finds no face in it: a street sign) is no person.
+finds no face in it: a street sign) is no person, unless it follows a face confirmed on one of the
+last :data:`~rvr_addon.depth.face_check.FOLLOW_FRAMES` frames (a blurred or half-hidden real face).
 
 All models run at an analysis size (long side :data:`ANALYSIS_LONG_SIDE` px); masks are upsampled
 to the frame's size once, so a 4K frame costs about what a 720p one does (plus the upsampling).
@@ -25,7 +26,8 @@ to the frame's size once, so a 4K frame costs about what a 720p one does (plus t
 mediapipe is imported lazily by the detector; without it (or when a model fails to load) the
 detector raises :class:`PeopleModelError`, an :class:`~rvr_addon.errors.InputError` whose message
 names the package and the fix, so a caller can fall back to network-only depth with one message.
-The detector keeps no state between frames (each frame's answer depends on that frame alone).
+The detector keeps one piece of state between frames: the faces it confirmed on the last
+FOLLOW_FRAMES calls, so give it a clip's frames in order (a new detector per clip or picture).
 """
 from __future__ import annotations
 
@@ -36,6 +38,7 @@ import os
 import sys
 import types
 import warnings
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Iterator
 
@@ -293,6 +296,8 @@ class PeopleDetector:
         self.max_faces = int(max_faces)
         self.use_face_mesh = bool(face_mesh)
         self._models: dict[str, Any] | None = None
+        self._recent: deque[list[tuple[float, float, float, float]]] = deque(maxlen=face_check.FOLLOW_FRAMES)
+        """The confirmed face boxes (analysis px) of the last calls, newest last: frames come in order."""
 
     # -- models ----------------------------------------------------------------------------------
     def _load(self) -> dict[str, Any]:
@@ -331,9 +336,12 @@ class PeopleDetector:
             else np.zeros((ah, aw), np.float32)
         faces = self._faces(models, small, frame)
         k = aw / w  # full-size px -> matte px; a box no person matte covers (a sign) is no face: face_check
-        faces = [faces[i] for i in face_check.confirmed_faces(
-            [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
-             for f in faces], matte, lambda i: faces[i]["mesh"])]
+        boxes = [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
+                 for f in faces]
+        kept = face_check.confirmed_faces(boxes, matte, lambda i: faces[i]["mesh"],
+                                          recent=[b for frame_boxes in self._recent for b in frame_boxes])
+        self._recent.append([boxes[i] for i in kept])
+        faces = [faces[i] for i in kept]
         layers = self._split(matte, faces, (h, w)) if faces else []
         info = {"people": len(layers), "distances_m": sorted(round(lay.person.distance_m, 3) for lay in layers),
                 "hfov_deg": self.hfov_deg, "face_width_m": FACE_WIDTH_M}

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from rvr_addon.depth.face_check import PERSON_MIN_COVER, confirmed_faces, person_cover
+from rvr_addon.depth.face_check import PERSON_MIN_COVER, confirmed_faces, follows, person_cover
 
 ROOT = Path(__file__).resolve().parents[2]
 CLIPS = ROOT.parent / "shared" / "data" / "clips"
@@ -47,6 +47,19 @@ def _frame(name: str, t: int) -> np.ndarray:
 
 
 @needs_mp
+def test_a_face_confirmed_on_a_recent_frame_vouches_for_the_box_that_follows_it():
+    """A real face the matte and the mesh both miss on one frame (motion blur) stays a face when it
+    follows a face confirmed just before; an unconfirmed box elsewhere does not."""
+    matte = np.zeros((100, 100), np.float32)              # the segmentation missed the person
+    face, sign = (40.0, 20.0, 20.0, 20.0), (5.0, 5.0, 15.0, 15.0)
+    assert confirmed_faces([face, sign], matte) == []
+    earlier = (36.0, 12.0, 21.0, 21.0)                     # the same face a frame before, moved 8 px
+    assert confirmed_faces([face, sign], matte, recent=[earlier]) == [0]
+    assert follows(face, earlier) and not follows(sign, earlier)
+    assert not follows((40.0, 20.0, 60.0, 60.0), earlier)  # three times the size: another face
+    assert not follows((80.0, 20.0, 20.0, 20.0), earlier)  # two face widths away
+
+
 def test_a_texture_the_face_detector_fires_on_is_no_face():
     """A blocky random colour pattern (seed 111) on which the full-range model finds a 15 px "face"
     at 0.63: nobody is segmented there (cover 0.0), the mesh finds nothing, the backend drops it."""
