@@ -210,11 +210,13 @@ def preferred_max_pixels(model: LoadedModel) -> int:
 
 
 def merge_context(d: np.ndarray, d_context: np.ndarray, sigma_px: float) -> np.ndarray:
-    """D with the low frequencies (below a Gaussian of ``sigma_px``, in px of ``d``) of
-    ``d_context`` and the high frequencies of ``d``: ``d + lowpass(d_context - d)``. ``d`` (H, W);
-    ``d_context`` any size (the context pass's own, smaller), in the same units (DESIGN px at
-    the frame's width). The low-pass runs at the context's size, or smaller so that sigma is
-    about 3 px there (cheap at 4K)."""
+    """D with the layout of ``d_context`` and the detail of ``d``: ``d + lowpass(c) - lowpass(d)``,
+    the low-pass a Gaussian of ``sigma_px`` (px of ``d``), where ``c`` is ``d_context``'s low-pass
+    given ``d``'s own low-pass median and spread (:func:`match_spread`: the layout of the context
+    pass at the magnitude the weights were trained at; the detail keeps its amplitude). ``d`` (H, W);
+    ``d_context`` any size (the context pass's own, smaller), both in DESIGN px at the frame's
+    width. The low-pass runs at the context's size, or smaller so that sigma is about 3 px there
+    (cheap at 4K)."""
     import cv2
 
     h, w = d.shape
@@ -226,7 +228,10 @@ def merge_context(d: np.ndarray, d_context: np.ndarray, sigma_px: float) -> np.n
     else:
         small_d = cv2.resize(d.astype(np.float32), size, interpolation=cv2.INTER_AREA)
         small_c = cv2.resize(d_context.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    low = cv2.GaussianBlur(small_c - small_d, (0, 0), max(sigma_px * f, 1e-3), borderType=cv2.BORDER_REFLECT)
+    s = max(sigma_px * f, 1e-3)
+    low_d = cv2.GaussianBlur(small_d, (0, 0), s, borderType=cv2.BORDER_REFLECT)
+    low_c = match_spread(cv2.GaussianBlur(small_c, (0, 0), s, borderType=cv2.BORDER_REFLECT), low_d)
+    low = low_c - low_d
     if size != (w, h):
         low = cv2.resize(low, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.ascontiguousarray(d + low, dtype=np.float32)
@@ -251,8 +256,8 @@ class Estimator:
     shrunk copy (linear-light area resampling); the grid is sliced with the full-resolution
     luma and E is gated at full resolution, so edges stay sharp. None: the size the weights
     ask for (:func:`preferred_max_pixels`). context_pixels: D's layout from a second pass at
-    this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`), given the main pass's median and
-    spread (:func:`match_spread`); 0 turns it off. E always comes from the main pass alone.
+    this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`, at the main pass's magnitude); 0
+    turns it off. E always comes from the main pass alone.
     """
 
     def __init__(self, model: LoadedModel, max_pixels: int | None = None,
@@ -270,8 +275,7 @@ class Estimator:
         d, e = self._pass(frame, self.max_pixels)
         if 0 < self.context_pixels < min(self.max_pixels, h * w):
             d_context, _e = self._pass(frame, self.context_pixels, full_size=False)
-            # the layout of the context pass, the magnitude the weights were trained at (the main pass's)
-            d = match_spread(merge_context(d, d_context, CONTEXT_SIGMA * w), d)
+            d = merge_context(d, d_context, CONTEXT_SIGMA * w)
         return d, e
 
     def _pass(self, frame: np.ndarray, max_pixels: int, full_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
