@@ -48,7 +48,7 @@ pixels (about 98x73 at 4:3): there the network's receptive field spans ~2.8x mor
 so what is near and far across the frame is seen whole (Miangoleh et al., CVPR 2021, merge a
 low-resolution pass for layout with a high-resolution one for detail). Picked on the Middlebury
 views among 1/32..2x the 57,600 px the weights run at (0.804 -> 0.736), and better on Motorcycle
-and the real videos too; see docs/depth.md."""
+and the real videos too; see the weights' MODEL.md."""
 CONTEXT_SIGMA = 0.02
 """Crossover of the two passes, Gaussian sigma as a fraction of the frame's width: D keeps the
 main pass's detail above it and takes the context pass's layout below it."""
