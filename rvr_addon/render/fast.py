@@ -267,8 +267,7 @@ class FastRenderer:
             while visible:
                 _subtract_pieces(left, touched, visible.popleft()[1], tl)
             cov = cv2.subtract(1.0, left)
-        # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill
-        acc_rgb = acc
+        # model step 5: out = acc / max(cov, 1) + (1 - min(cov, 1)) * fill (acc: the RGB sums now)
         weight = cv2.min(cov, 1.0)
         # model.fill_weight: a coverage within COVERAGE_SNAP of 1 is 1 (rounding, not an uncovered pixel)
         weight = cv2.max(weight, cv2.threshold(weight, 1.0 - COVERAGE_SNAP, 1.0, cv2.THRESH_BINARY)[1])
@@ -282,7 +281,7 @@ class FastRenderer:
             f = cv2.resize(f, size, interpolation=cv2.INTER_LINEAR)[:h, :w]
             return cv2.add(cv2.multiply(a, scale), cv2.multiply(cv2.multiply(f, f), rest))  # model.fill_decode
 
-        return cv2.merge(self._map(resolve, list(zip(acc_rgb, cv2.split(fill)))))
+        return cv2.merge(self._map(resolve, list(zip(acc, cv2.split(fill)))))
 
     def render_srgb(
         self,
