@@ -287,7 +287,11 @@ class DepthStream:
 
 
 def describe_usage(plan: DepthPlan, usage: dict) -> str:
-    """``parallax on 40 of 48 frames, people on 48, network on all`` for the log."""
+    """``parallax on 40 of 48 frames, people on 48 of 48 frames, depth carried along the flow on 12,
+    network on all`` for the log (``carried``: frames where the depth carried from the frames before
+    filled in where their own parallax was missing or less sure, :mod:`.fuse`)."""
     n = usage.get("frames", 0)
     parts = [f"{c} on {usage.get(c, 0)} of {n} frames" for c in plan.cues if c not in ("network", "external")]
+    if usage.get("carried"):
+        parts.append(f"depth carried along the flow on {usage['carried']}")
     return ", ".join(parts + ["network on all"]) if parts else f"{plan.cues[0]} on all {n} frames"

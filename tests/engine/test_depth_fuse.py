@@ -1,6 +1,7 @@
 """depth.fuse.DepthFuser on synthetic cues: people alone (metric inside, backdrop behind), no cue
 (the network's D unchanged), parallax scaled by people, parallax alone (the clip's scale fixed at
-its first frame with parallax and kept), DESIGN units, frame size, finiteness, tiny and 4K frames."""
+its first frame with parallax and kept), the depth carried along the flow into a frame whose
+parallax fails, DESIGN units, frame size, finiteness, tiny and 4K frames."""
 from __future__ import annotations
 
 import tracemalloc
@@ -60,7 +61,7 @@ def test_people_only_metric_inside_and_backdrop_behind():
     around = np.concatenate([q[20:, 60 - reach:56].ravel(), q[20:, 104:100 + reach].ravel(),
                              q[20 - reach:16, 60 - reach:100 + reach].ravel()])
     assert around.max() <= s.behind_ratio * (1 / 1.5) * 1.03
-    assert fuser.used == {"frames": 1, "parallax": 0, "people": 1, "network_only": 0}
+    assert fuser.used == {"frames": 1, "parallax": 0, "people": 1, "network_only": 0, "carried": 0}
 
 
 def test_no_cue_leaves_the_network_d_unchanged():
@@ -149,7 +150,8 @@ def test_parallax_alone_scale_set_once_and_kept():
     assert fuser.parallax_scale == scale  # kept
     for y, x in ((50, 45), (60, 120)):  # the same scene points, the same D
         assert out2.disparity[y, x] == pytest.approx(out1.disparity[y, x], abs=0.02 * K * 0.5)
-    assert fuser.used == {"frames": 3, "parallax": 2, "people": 0, "network_only": 1}
+    # frame 2's parallax misses the border: there the depth of frame 1 is carried along the flow
+    assert fuser.used == {"frames": 3, "parallax": 2, "people": 0, "network_only": 1, "carried": 1}
 
 
 def test_the_fit_memory_smooths_the_network_fit():
@@ -176,9 +178,10 @@ def test_tiny_and_thin_frames(h, w):
     frame = np.full((h, w, 3), 128, np.uint8)
     q = np.full((h, w), 0.5, np.float32)
     cues = [CueMap("people", q, np.ones((h, w), np.float32), metric=True), parallax_cue(q)]
-    out = fuser(frame, np.zeros((h, w), np.float32), cues)
-    assert out.disparity.shape == out.confidence.shape == (h, w)
-    assert np.isfinite(out.disparity).all() and np.isfinite(out.confidence).all()
+    for frame_cues in (cues, cues, []):  # the second and third frames carry the first's depth along the flow
+        out = fuser(frame, np.zeros((h, w), np.float32), frame_cues)
+        assert out.disparity.shape == out.confidence.shape == (h, w)
+        assert np.isfinite(out.disparity).all() and np.isfinite(out.confidence).all()
 
 
 def test_4k_frame_full_size_finite_and_memory_bounded():
@@ -220,3 +223,44 @@ def test_what_the_network_puts_clearly_in_front_of_a_person_stays_in_front():
     assert np.median(outs[0.0][desk]) < 1.2 * q_person  # measured 0.4: capped at 0.8 x the person
     for ratio in (1.5, 0.0):
         assert np.percentile(outs[ratio][backdrop], 90) <= 0.8 * q_person * 1.03
+
+
+def test_a_frame_whose_parallax_fails_keeps_the_depth_carried_along_the_flow():
+    """Frame 0 has parallax; frames 1.. are the same scene moved 4 px right each, with no cue and a
+    flat network: the near box stays near, where it moved to (not the network's flat D), until the
+    chain ends carry_frames frames after the parallax; with carry_weight 0 the frame is the network's."""
+    q = scene_q()
+    frame = scene_frame(q)
+    K = lens_constant(W)
+    flat = np.zeros((H, W), np.float32)
+    outs = {}
+    for weight in (1.0, 0.0):
+        fuser = DepthFuser(W, FusionSettings(carry_weight=weight, carry_frames=3))
+        first = fuser(frame, flat, [parallax_cue(q)])
+        outs[weight] = [fuser(np.roll(frame, 4 * k, axis=1), flat, []) for k in (1, 2, 3, 4)]
+        if weight == 0.0:
+            assert [o.cues for o in outs[weight]] == [["network"]] * 4
+            np.testing.assert_array_equal(outs[weight][0].disparity, fuser.K * (fuser.q_ref - (
+                fuser._fit[0] * flat + fuser._fit[1])))
+            assert fuser.used["carried"] == 0
+            continue
+        assert [o.cues for o in outs[weight]] == [["carried", "network"]] * 3 + [["network"]]
+        assert fuser.used == {"frames": 5, "parallax": 1, "people": 0, "network_only": 1, "carried": 3}
+        step = np.median(first.disparity[5:15, 80:95]) - np.median(first.disparity[40:80, 110:130])
+        assert step > 0.3 * K  # the near box is in front of the backdrop in frame 0
+        for k, out in enumerate(outs[weight][:3], start=1):
+            box = out.disparity[40:80, 110 + 4 * k:130 + 4 * k]  # where the box moved to
+            back = out.disparity[5:15, 80 + 4 * k:95 + 4 * k]
+            assert np.median(back) - np.median(box) > 0.8 * step, k
+        assert np.ptp(outs[weight][3].disparity) < 1e-3 * K  # the chain has ended: the flat network
+
+
+def test_a_still_camera_carries_nothing():
+    """People alone (no parallax): no depth is carried; a frame without cues is the network's."""
+    boxes = [(60, 20, 100, 96, 1.5)]
+    frame = with_people(textured(), boxes)
+    fuser = DepthFuser(W)
+    net_d = np.zeros((H, W), np.float32)
+    fuser(frame, net_d, [person_cue((H, W), boxes)])
+    assert fuser._carry is None
+    assert fuser(frame, net_d, []).cues == ["network"] and fuser.used["carried"] == 0
