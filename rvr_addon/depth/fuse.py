@@ -91,7 +91,8 @@ class FusionSettings:
 @dataclass
 class FusedDepth:
     """One frame's fused depth: D (H, W) float32 DESIGN units; confidence (H, W) float32 0..1
-    (how much geometry, not the prior, decided each pixel); cues: names of the cues that spoke."""
+    (how much geometry, not the prior, decided each pixel); cues: names of the cues that spoke
+    (``carried`` first on a frame without parallax of its own that took the depth carried along the flow)."""
 
     disparity: np.ndarray
     confidence: np.ndarray
