@@ -462,6 +462,8 @@ def evaluate_video_clip(root: str | Path, methods: list[str], network: DepthFn, 
         for cue in plan.cues:
             if cue != "network" and len(plan.cues) > 1:
                 summary[f"{k}.{cue}_frames"] = int(usage.get(cue, 0))
+        if "parallax" in plan.cues:  # frames that took the depth carried along the flow (depth.fuse)
+            summary[f"{k}.carried_frames"] = int(usage.get("carried", 0))
     md = [f"## Real video `{root.name}` ({n} frames, {prev.rgb.shape[1]}x{prev.rgb.shape[0]})", "",
           "The whole depth system as `rvr estimate --depth-method M` runs it"
           + (f" (--hfov {hfov_deg:g})" if hfov_deg is not None else " (default --hfov)") + ":", ""]
