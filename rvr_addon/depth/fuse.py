@@ -156,8 +156,8 @@ class DepthFuser:
         cues keeps the network's own D, which is then consistent with ``fit = (-1/K, q_ref)``."""
         self._last_q: np.ndarray | None = None
         self._fit: tuple[float, float] | None = None
-        self._carry: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-        """(gray at the flow size, q, confidence at the analysis size) of the previous frame."""
+        self._carry: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        """(luma at the flow size; luma, q and confidence at the analysis size) of the previous frame."""
         self._since_parallax = 0
         self._dis = None
         self.used: dict[str, int] = {"frames": 0, "parallax": 0, "people": 0, "network_only": 0, "carried": 0}
@@ -214,27 +214,26 @@ class DepthFuser:
         self._fit = fit
         return fit
 
-    def _carried(self, gray: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
+    def _carried(self, gray: np.ndarray, luma: np.ndarray, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray] | None:
         """(q, confidence) of the previous frame's fused depth carried into this one along the
         flow (module docstring), at the analysis ``size``; None without a previous frame.
-        gray: this frame's luma at the flow size (uint8)."""
-        if self._carry is None or self.settings.carry_weight <= 0:
+        gray: this frame's luma at the flow size (uint8); luma: the same at ``size`` (float32)."""
+        if self._carry is None:
             return None
         import cv2
 
         from ..temporal.flow import PRESETS, dis_calc, flow_maps, upsample_flow
 
-        prev_gray, prev_q, prev_c = self._carry
-        if prev_gray.shape != gray.shape or prev_q.shape != (size[1], size[0]):
+        prev_gray, prev_luma, prev_q, prev_c = self._carry
+        if prev_gray.shape != gray.shape or prev_q.shape != luma.shape:
             return None
         if self._dis is None:
             self._dis = cv2.DISOpticalFlow_create(PRESETS["medium"])
         maps = flow_maps(upsample_flow(dis_calc(self._dis, gray, prev_gray), size))
         # q, confidence and luma of the previous frame in one remap; outside it the confidence is 0
-        then = np.dstack([prev_q, prev_c, _resize(prev_gray, size).astype(np.float32)])
-        q, c, luma = cv2.split(cv2.remap(then, maps, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                                         borderValue=0))
-        photo = np.exp(np.abs(luma - _resize(gray, size).astype(np.float32)) * np.float32(-1.0 / self.settings.carry_photo))
+        q, c, then = cv2.split(cv2.remap(np.dstack([prev_q, prev_c, prev_luma]), maps, None, cv2.INTER_LINEAR,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0))
+        photo = np.exp(np.abs(then - luma) * np.float32(-1.0 / self.settings.carry_photo))
         conf = np.float32(self.settings.carry_weight) * photo * c
         return q, np.clip(conf, 0.0, 1.0)
 
@@ -291,12 +290,13 @@ class DepthFuser:
             par = CueMap("parallax", q_par, c_par, True, True, par.info) if (c_par > 0).any() else None
         self._since_parallax = 0 if par is not None else self._since_parallax + 1
         own_parallax = par is not None
-        gray = None
+        gray = luma = carried = None
         if s.carry_weight > 0 and (par is not None or self._carry is not None):
             from ..temporal.flow import flow_size, to_flow_gray
 
             gray = to_flow_gray(frame, flow_size(w, h, s.carry_flow_side))
-        carried = self._carried(gray, size) if gray is not None else None
+            luma = _resize(gray, size).astype(np.float32)
+            carried = self._carried(gray, luma, size)
         if carried is not None:  # the scene's geometry carried in where this frame's parallax is missing or less sure
             q_c, c_c = carried
             if par is None:
@@ -365,7 +365,7 @@ class DepthFuser:
         d = (self.K * (self.q_ref - q)).astype(np.float32)
         conf = np.clip((conf - s.network_weight) / max(1.0 - s.network_weight, 1e-6), 0.0, 1.0)
         if gray is not None and par is not None and self._since_parallax < s.carry_frames:
-            self._carry = (gray, q.astype(np.float32), conf.astype(np.float32))
+            self._carry = (gray, luma, q.astype(np.float32), conf.astype(np.float32))
         if (d.shape[1], d.shape[0]) != (w, h):
             d = cv2.resize(d, (w, h), interpolation=cv2.INTER_LINEAR)
             conf = cv2.resize(conf, (w, h), interpolation=cv2.INTER_LINEAR)
