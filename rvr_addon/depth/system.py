@@ -27,6 +27,7 @@ from ..errors import InputError
 from .cues import DEFAULT_HFOV_DEG, CueMap
 from .fuse import DepthFuser, FusedDepth, FusionSettings
 from .methods import METHODS
+from .refine import ClipRefiner
 
 log = logging.getLogger(__name__)
 
@@ -202,6 +203,7 @@ class DepthStream:
             from .people import PeopleDetector
 
             self.people = PeopleDetector(hfov_deg=plan.hfov_deg)
+        self._refiner: ClipRefiner | None = None
         self.parallax = None
         if "parallax" in plan.cues:
             from .cues import focal_px
@@ -220,8 +222,12 @@ class DepthStream:
             self.people.close()
 
     def usage(self) -> dict:
-        """How many frames each cue spoke on (for meta.json and the log)."""
-        return dict(self.fuser.used)
+        """How many frames each cue spoke on (for meta.json and the log); ``refined``: frames
+        whose depth the frames after them changed (:mod:`.refine`, a moving camera)."""
+        used = dict(self.fuser.used)
+        if self._refiner is not None:
+            used["refined"] = self._refiner.refined
+        return used
 
     def _parallax_maps(self, frames: Iterable[np.ndarray], queue: deque) -> Iterator[CueMap]:
         def feed():
@@ -250,12 +256,15 @@ class DepthStream:
                 top_up()
                 yield f
 
+        refiner = ClipRefiner(self.plan.fusion)  # a moving camera: each frame refined with the ones after it
+        self._refiner = refiner
         try:
             for cue in self._parallax_maps(source(), queue):
                 frame = queue.popleft()
                 own = ahead.popleft().result() if ahead else self._frame_cues(frame)
                 top_up()
-                yield (frame, *self._fuse(frame, own, cue))
+                yield from refiner.push((frame, *self._fuse(frame, own, cue)))
+            yield from refiner.finish()
         finally:
             if pool is not None:
                 pool.shutdown(wait=True, cancel_futures=True)
@@ -294,4 +303,6 @@ def describe_usage(plan: DepthPlan, usage: dict) -> str:
     parts = [f"{c} on {usage.get(c, 0)} of {n} frames" for c in plan.cues if c not in ("network", "external")]
     if usage.get("carried"):
         parts.append(f"depth carried along the flow on {usage['carried']}")
+    if usage.get("refined"):
+        parts.append(f"refined with the frames after it on {usage['refined']}")
     return ", ".join(parts + ["network on all"]) if parts else f"{plan.cues[0]} on all {n} frames"

@@ -303,7 +303,7 @@ def test_the_cues_run_ahead_on_a_worker_and_give_the_same_depth(monkeypatch, peo
     """With the parallax cue on, the network and the people cue of the next frames run on a worker
     thread (``overlap``): every frame's D, E and cue use are those of running them in turn, a
     people model that fails is switched off for the frames after it with one note, and at most
-    AHEAD_FRAMES frames wait with their answers."""
+    AHEAD_FRAMES frames wait with their answers (besides the refine_lag frames the refinement holds)."""
     frames, _ = translating_clip(n=N_MOVING)
     monkeypatch.setattr(people_mod, "PeopleDetector", people)
     plan = DepthPlan("auto", ("parallax", "people", "network"), hfov_deg=60.0, hfov_given=True)
@@ -324,7 +324,9 @@ def test_the_cues_run_ahead_on_a_worker_and_give_the_same_depth(monkeypatch, peo
             yielded[0] += 1
         runs[overlap] = (out, stream.usage(), list(stream.notes))
         stream.close()
-        assert max(ahead) <= (system.AHEAD_FRAMES if overlap else 0)  # the frame being fused + AHEAD_FRAMES
+        # the frame being fused + AHEAD_FRAMES, and the frames the refinement holds back
+        lag = plan.fusion.refine_lag
+        assert max(ahead) <= (system.AHEAD_FRAMES if overlap else 0) + lag
     (a, used_a, notes_a), (b, used_b, notes_b) = runs[False], runs[True]
     assert len(a) == len(b) == N_MOVING and used_a == used_b and notes_a == notes_b
     for i, ((da, ea), (db, eb)) in enumerate(zip(a, b)):
