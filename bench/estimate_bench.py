@@ -28,6 +28,8 @@ The whole depth system (``rvr estimate --depth-method auto``, the default) on RE
   camera, where auto adds parallax; its whole auto run is ``estimate.auto_moving.<size>``). With
   the parallax cue on, the network and the people cue run on DepthStream's worker thread while the
   parallax cue works, so on the moving clip the parts overlap and add up to more than the total.
+  ``estimate.refine_moving.<size>``: the moving clip's refinement with the frames after it
+  (:mod:`rvr_addon.depth.refine`: its flows and carries).
 
 The last line of stdout is the JSON of DESIGN.md's keys.
 """
@@ -147,9 +149,32 @@ def timed_auto_job(frames: Path, cache: Path, weights: Path, method: str = "auto
                     yield cue
 
             stream._parallax_maps = timed_maps
+            from rvr_addon.depth import system as depth_system_mod
+
+            class TimedRefiner(depth_system_mod.ClipRefiner):
+                """The refinement's share (depth.refine: flows, carries), timed per call."""
+
+                def push(self, item):
+                    t = time.perf_counter()
+                    out = list(super().push(item))
+                    acc["refine"] = acc.get("refine", 0.0) + time.perf_counter() - t
+                    yield from out
+
+                def finish(self):
+                    t = time.perf_counter()
+                    out = list(super().finish())
+                    acc["refine"] = acc.get("refine", 0.0) + time.perf_counter() - t
+                    yield from out
+
+            depth_system_mod.ClipRefiner = TimedRefiner  # the stream makes its refiner when it starts
     elif job.estimator is not None:
         job.estimator = _Timed(job.estimator, acc, "network")
-    job.run(progress=False)
+    try:
+        job.run(progress=False)
+    finally:
+        from rvr_addon.depth import refine, system as depth_system_mod
+
+        depth_system_mod.ClipRefiner = refine.ClipRefiner
     acc["total"] = time.perf_counter() - t0
     return acc, job
 
@@ -197,10 +222,11 @@ def depth_system(result: dict, weights: Path, tmp: Path, n_frames: int) -> None:
             if "parallax" in tm:
                 result[f"estimate.parallax.{name}.s_per_frame"] = round(tm["parallax"] / jm.total, 4)
             result[f"estimate.fuse_moving.{name}.s_per_frame"] = round(tm.get("fuse", 0.0) / jm.total, 4)
+            result[f"estimate.refine_moving.{name}.s_per_frame"] = round(tm.get("refine", 0.0) / jm.total, 4)
             print(f"{name} auto on {MOVING_CLIP.name} ({n} frames): {tm['total'] / jm.total:.3f} s/frame, "
                   f"{jm.plan.summary()}; per frame: parallax {tm.get('parallax', 0) / jm.total:.3f}, network "
                   f"{tm.get('network', 0) / jm.total:.3f}, people {tm.get('people', 0) / jm.total:.3f}, fuse "
-                  f"{tm.get('fuse', 0) / jm.total:.3f}", file=sys.stderr)
+                  f"{tm.get('fuse', 0) / jm.total:.3f}, refine {tm.get('refine', 0) / jm.total:.3f}", file=sys.stderr)
         else:
             print(f"no parallax timing: {MOVING_CLIP} is absent", file=sys.stderr)
 

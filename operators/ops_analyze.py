@@ -123,9 +123,10 @@ def depth_line(cache: Path | str) -> str:
         return ""
     n = used.get("frames")
     parts = [f"{c} {used.get(c, 0)}/{n}" if n and c not in ("network", "external") else c for c in cues]
-    if n and used.get("carried"):
-        parts.insert(len(parts) - 1 if parts and parts[-1] in ("network", "external") else len(parts),
-                     f"carried {used['carried']}/{n}")
+    for extra in ("carried", "refined"):  # the moving camera's depth carried along the flow / refined with later frames
+        if n and used.get(extra):
+            parts.insert(len(parts) - 1 if parts and parts[-1] in ("network", "external") else len(parts),
+                         f"{extra} {used[extra]}/{n}")
     line = f"Depth ({plan.get('method', '?')}): " + ", ".join(parts)
     off = [f"{k} {str(v).split(';')[0]}" for k, v in reasons.items() if str(v).startswith("off")]
     notes = (meta.get("depth_cues") or {}).get("notes") or []

@@ -187,7 +187,9 @@ class DepthStream:
     in a bounded queue (at most window + GATE_HOLD_FRAMES + 1 full frames). While the parallax cue
     works on the main thread, the network and the people cue of the next AHEAD_FRAMES frames of
     that queue run on one worker thread (``overlap``; the parallax cue's NumPy work leaves a
-    core idle); each frame's answers are the same either way.
+    core idle); each frame's answers are the same either way. With the parallax cue, the fused
+    frames are then refined with the ``refine_lag`` frames after them (:mod:`.refine`), which holds
+    that many more (frame, D, E) back.
     """
 
     def __init__(self, plan: DepthPlan, size: tuple[int, int], network: Network, overlap: bool = True) -> None:
@@ -297,8 +299,9 @@ class DepthStream:
 
 def describe_usage(plan: DepthPlan, usage: dict) -> str:
     """``parallax on 40 of 48 frames, people on 48 of 48 frames, depth carried along the flow on 12,
-    network on all`` for the log (``carried``: frames where the depth carried from the frames before
-    filled in where their own parallax was missing or less sure, :mod:`.fuse`)."""
+    refined with the frames after it on 47, network on all`` for the log (``carried``: frames where
+    the depth carried from the frames before filled in where their own parallax was missing or less
+    sure, :mod:`.fuse`; ``refined``: frames whose depth the frames after them changed, :mod:`.refine`)."""
     n = usage.get("frames", 0)
     parts = [f"{c} on {usage.get(c, 0)} of {n} frames" for c in plan.cues if c not in ("network", "external")]
     if usage.get("carried"):

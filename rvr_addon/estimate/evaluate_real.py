@@ -34,7 +34,9 @@ Per method, keys ``estimate.video.<clip>.<M>.``:
   clip is the same figure for the GT inverse depth (the floor of a perfect D), and
   ``flicker_geometry_corrected`` removes the change the clip-wide fit ``D ~ s q + t`` explains:
   mean |(D_t(x) - D_{t+1}(x')) - s (q_t(x) - q_{t+1}(x'))| / std(D) (0 for a perfect D);
-* ``s_per_frame`` and, for the system, how often each cue spoke (``<cue>_frames``).
+* ``s_per_frame`` and, for the system, how often each cue spoke (``<cue>_frames``); with parallax
+  in the plan, ``carried_frames`` (frames that took the depth carried along the flow) and
+  ``refined_frames`` (frames whose depth the frames after them changed, :mod:`..depth.refine`).
 
 ``estimate.video.<clip>.ramp_error`` / ``.ramp_clip_affine_error`` are the vertical ramp's.
 
@@ -464,6 +466,7 @@ def evaluate_video_clip(root: str | Path, methods: list[str], network: DepthFn, 
                 summary[f"{k}.{cue}_frames"] = int(usage.get(cue, 0))
         if "parallax" in plan.cues:  # frames that took the depth carried along the flow (depth.fuse)
             summary[f"{k}.carried_frames"] = int(usage.get("carried", 0))
+            summary[f"{k}.refined_frames"] = int(usage.get("refined", 0))  # changed by later frames (depth.refine)
     md = [f"## Real video `{root.name}` ({n} frames, {prev.rgb.shape[1]}x{prev.rgb.shape[0]})", "",
           "The whole depth system as `rvr estimate --depth-method M` runs it"
           + (f" (--hfov {hfov_deg:g})" if hfov_deg is not None else " (default --hfov)") + ":", ""]
