@@ -105,6 +105,9 @@ class FusedDepth:
     confidence: np.ndarray
     cues: list[str] = field(default_factory=list)
     info: dict = field(default_factory=dict)
+    to_prev: np.ndarray | None = None
+    """(h, w, 2) float32 at the analysis size: where each pixel lies in the previous frame (absolute
+    px), when the carry computed that flow (:mod:`.refine` reuses it); else None."""
 
 
 def _resize(a: np.ndarray, size: tuple[int, int], nearest: bool = False) -> np.ndarray:
@@ -167,6 +170,7 @@ class DepthFuser:
         """(luma at the flow size; luma, q and confidence at the analysis size) of the previous frame."""
         self._since_parallax = 0
         self._dis = None
+        self._to_prev: np.ndarray | None = None  # this frame's flow maps into the previous one, when computed
         self.used: dict[str, int] = {"frames": 0, "parallax": 0, "people": 0, "network_only": 0, "carried": 0}
 
     # -------------------------------------------------------------- pieces
@@ -236,7 +240,7 @@ class DepthFuser:
             return None
         if self._dis is None:
             self._dis = cv2.DISOpticalFlow_create(PRESETS["medium"])
-        maps = flow_maps(upsample_flow(dis_calc(self._dis, gray, prev_gray), size))
+        maps = self._to_prev = flow_maps(upsample_flow(dis_calc(self._dis, gray, prev_gray), size))
         # q, confidence and luma of the previous frame in one remap; outside it the confidence is 0
         q, c, then = cv2.split(cv2.remap(np.dstack([prev_q, prev_c, prev_luma]), maps, None, cv2.INTER_LINEAR,
                                          borderMode=cv2.BORDER_CONSTANT, borderValue=0))
@@ -297,7 +301,7 @@ class DepthFuser:
             par = CueMap("parallax", q_par, c_par, True, True, par.info) if (c_par > 0).any() else None
         self._since_parallax = 0 if par is not None else self._since_parallax + 1
         own_parallax = par is not None
-        gray = luma = carried = None
+        gray = luma = carried = self._to_prev = None
         if s.carry_weight > 0 and (par is not None or self._carry is not None):
             from ..temporal.flow import flow_size, to_flow_gray
 
@@ -325,7 +329,7 @@ class DepthFuser:
                 a, b = self._fit
                 d = (self.K * (self.q_ref - (a * d + b))).astype(np.float32)
             return FusedDepth(d, np.zeros((h, w), np.float32), ["network"],
-                              {"fit": None if self._fit is None else list(self._fit)})
+                              {"fit": None if self._fit is None else list(self._fit)}, to_prev=self._to_prev)
         # the network, mapped to q by the geometric cues
         geo_q = np.full(d_net.shape, np.nan, np.float32)
         geo_w = np.zeros(d_net.shape, np.float32)
@@ -384,4 +388,4 @@ class DepthFuser:
                 self.used[n] += 1
         return FusedDepth(d, conf.astype(np.float32), names,
                           {"fit": [float(fit[0]), float(fit[1])], "parallax_scale": self.parallax_scale,
-                           "scale_source": self.scale_source})
+                           "scale_source": self.scale_source}, to_prev=self._to_prev)

@@ -182,7 +182,9 @@ class ClipRefiner:
         if prev is not None and not cur.cut_before and prev.gray.shape == cur.gray.shape \
                 and prev.d.shape == cur.d.shape:
             size = (cur.d.shape[1], cur.d.shape[0])
-            cur.to_prev = self._flow_maps(cur.gray, prev.gray, size)
+            given = cur.item[3].to_prev  # the fuser's carry ran the same flow (same frames, size and preset)
+            same = given is not None and given.shape[:2] == cur.d.shape and self.settings.carry_flow_side > 0
+            cur.to_prev = given if same else self._flow_maps(cur.gray, prev.gray, size)
             if self._held:
                 prev.to_next = self._flow_maps(prev.gray, cur.gray, size)
         elif self._held and not cur.cut_before:
