@@ -61,14 +61,31 @@ def follows(box: Box, earlier: Box) -> bool:
 
 def confirmed_faces(boxes: Sequence[Box], matte: np.ndarray | None,
                     mesh_finds: Callable[[int], bool] | None = None,
-                    min_cover: float = PERSON_MIN_COVER, recent: Sequence[Box] = ()) -> list[int]:
-    """Indices of the face boxes (x, y, w, h, px of ``matte``) that are faces: the person matte
-    covers ``min_cover`` of the box, or ``mesh_finds(i)`` says the face mesh finds a face in box i
-    (asked only for boxes the matte does not cover; None: no mesh), or the box :func:`follows` one
-    of ``recent`` (the faces confirmed on the last FOLLOW_FRAMES frames, same px)."""
+                    min_cover: float = PERSON_MIN_COVER, recent: Sequence[Box] = (),
+                    pending: Sequence[Box] | None = None) -> list[int]:
+    """Indices of the face boxes (x, y, w, h, px of ``matte``) that are faces: the box
+    :func:`follows` one of ``recent`` (the faces confirmed on the last FOLLOW_FRAMES frames, same
+    px), or the person matte covers ``min_cover`` of it, or ``mesh_finds(i)`` says the face mesh
+    finds a face in box i (asked only for boxes not confirmed otherwise; None: no mesh).
+
+    pending: None (a picture, a clip's first frame): the matte alone confirms a box. Else the
+    boxes the matte alone covered on the previous frame and nothing confirmed (:func:`matte_only`):
+    a box the matte covers then needs to follow one of them. A face that appears from nowhere in a
+    clip must be seen on two frames in a row unless the mesh confirms it: the selfie matte takes a
+    bag on a sofa or a plant for a person now and then, for one frame (HoloLens office, frames 30
+    and 112: matte cover 0.82 and 1.0, no mesh face, no detection on the frames around them)."""
     kept = []
     for i, box in enumerate(boxes):
-        if (person_cover(matte, box) >= min_cover or any(follows(box, r) for r in recent)
+        covered = person_cover(matte, box) >= min_cover
+        if (any(follows(box, r) for r in recent)
+                or (covered and (pending is None or any(follows(box, p) for p in pending)))
                 or (mesh_finds is not None and mesh_finds(i))):
             kept.append(i)
     return kept
+
+
+def matte_only(boxes: Sequence[Box], matte: np.ndarray | None, kept: Sequence[int],
+               min_cover: float = PERSON_MIN_COVER) -> list[Box]:
+    """The boxes the person matte covers that :func:`confirmed_faces` did not keep (the next
+    frame's ``pending``)."""
+    return [b for i, b in enumerate(boxes) if i not in kept and person_cover(matte, b) >= min_cover]

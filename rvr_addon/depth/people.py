@@ -18,7 +18,9 @@ gentle relief (the face a few cm nearer than the body's silhouette), NaN outside
 confidence = the person's soft matte. Where people overlap, the nearer one wins. A detected face
 :mod:`~rvr_addon.depth.face_check` does not confirm (no person matte covers its box and the face mesh
 finds no face in it: a street sign) is no person, unless it follows a face confirmed on one of the
-last :data:`~rvr_addon.depth.face_check.FOLLOW_FRAMES` frames (a blurred or half-hidden real face).
+last :data:`~rvr_addon.depth.face_check.FOLLOW_FRAMES` frames (a blurred or half-hidden real face);
+after a clip's first frame, a face that only the matte confirms must also have been seen on the
+frame before (a bag or a plant the matte takes for a person for one frame is no person).
 
 All models run at an analysis size (long side :data:`ANALYSIS_LONG_SIDE` px); masks are upsampled
 to the frame's size once, so a 4K frame costs about what a 720p one does (plus the upsampling).
@@ -26,8 +28,9 @@ to the frame's size once, so a 4K frame costs about what a 720p one does (plus t
 mediapipe is imported lazily by the detector; without it (or when a model fails to load) the
 detector raises :class:`PeopleModelError`, an :class:`~rvr_addon.errors.InputError` whose message
 names the package and the fix, so a caller can fall back to network-only depth with one message.
-The detector keeps one piece of state between frames: the faces it confirmed on the last
-FOLLOW_FRAMES calls, so give it a clip's frames in order (a new detector per clip or picture).
+The detector keeps state between frames: the faces it confirmed on the last FOLLOW_FRAMES calls and
+the previous call's unconfirmed ones, so give it a clip's frames in order (a new detector per clip
+or picture).
 """
 from __future__ import annotations
 
@@ -298,6 +301,9 @@ class PeopleDetector:
         self._models: dict[str, Any] | None = None
         self._recent: deque[list[tuple[float, float, float, float]]] = deque(maxlen=face_check.FOLLOW_FRAMES)
         """The confirmed face boxes (analysis px) of the last calls, newest last: frames come in order."""
+        self._pending: list[tuple[float, float, float, float]] | None = None
+        """The previous call's boxes that only the matte covered (``face_check.confirmed_faces``'s
+        ``pending``); None before the first frame, where the matte alone confirms a face."""
 
     # -- models ----------------------------------------------------------------------------------
     def _load(self) -> dict[str, Any]:
@@ -339,8 +345,10 @@ class PeopleDetector:
         boxes = [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
                  for f in faces]
         kept = face_check.confirmed_faces(boxes, matte, lambda i: faces[i]["mesh"],
-                                          recent=[b for frame_boxes in self._recent for b in frame_boxes])
+                                          recent=[b for frame_boxes in self._recent for b in frame_boxes],
+                                          pending=self._pending)
         self._recent.append([boxes[i] for i in kept])
+        self._pending = face_check.matte_only(boxes, matte, kept)
         faces = [faces[i] for i in kept]
         layers = self._split(matte, faces, (h, w)) if faces else []
         info = {"people": len(layers), "distances_m": sorted(round(lay.person.distance_m, 3) for lay in layers),

@@ -1,6 +1,7 @@
 """A face box is a face only when a person is around it (``rvr_addon.depth.face_check``): MediaPipe's
 face detector fires on a street sign (``rvr refocus --demo``, frame 76) and on textures; LAAF's face
-backend and the people depth cue drop such boxes, and keep the real faces of the clips."""
+backend and the people depth cue drop such boxes, and keep the real faces of the clips; in a clip the
+people cue also drops a face only the matte confirms on one frame alone (a bag, a plant)."""
 from __future__ import annotations
 
 import importlib.util
@@ -10,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from rvr_addon.depth.face_check import PERSON_MIN_COVER, confirmed_faces, follows, person_cover
+from rvr_addon.depth.face_check import PERSON_MIN_COVER, confirmed_faces, follows, matte_only, person_cover
 
 ROOT = Path(__file__).resolve().parents[2]
 CLIPS = ROOT.parent / "shared" / "data" / "clips"
@@ -30,6 +31,23 @@ def test_a_box_counts_where_the_person_matte_covers_it_or_else_the_mesh_finds_a_
     assert confirmed_faces([on, off, edge], matte, lambda i: asked.append(i) or i == 1) == [0, 1]
     assert asked == [1, 2]  # the mesh is asked only for the boxes the matte does not cover
     assert confirmed_faces([], matte) == []
+
+
+def test_in_a_clip_a_face_only_the_matte_confirms_must_be_seen_on_two_frames_in_a_row():
+    """After a clip's first frame (pending not None) a box the matte alone covers is kept only when
+    it follows one the matte covered on the frame before (a bag the matte took for a person for
+    one frame is dropped); the mesh or a recent confirmed face still confirms at once."""
+    matte = np.zeros((100, 200), np.float32)
+    matte[20:100, 30:90] = 1.0
+    bag, other = (40.0, 25.0, 30.0, 30.0), (140.0, 10.0, 30.0, 30.0)
+    assert confirmed_faces([bag], matte, pending=None) == [0]  # a picture, or a clip's first frame
+    assert confirmed_faces([bag], matte, pending=[]) == []  # appeared from nowhere
+    assert matte_only([bag, other], matte, kept=[]) == [bag]  # the next frame's pending
+    assert matte_only([bag, other], matte, kept=[0]) == []
+    assert confirmed_faces([bag], matte, pending=[(44.0, 27.0, 30.0, 30.0)]) == [0]  # seen on the frame before
+    assert confirmed_faces([bag], matte, pending=[other]) == []
+    assert confirmed_faces([bag], matte, lambda i: True, pending=[]) == [0]  # the mesh confirms it
+    assert confirmed_faces([bag], matte, recent=[bag], pending=[]) == [0]  # it follows a confirmed face
 
 
 def _analysis(rgb: np.ndarray) -> np.ndarray:
