@@ -315,3 +315,26 @@ def test_cache_from_another_engine_version_is_recomputed_and_corrupt_weights_fai
     assert main(["estimate", str(clip), "-o", str(tmp_path / "c2"), "--weights", str(bad), "-q"]) == 2
     err = capsys.readouterr().err
     assert "broken_estimator.pt" in err and "corrupt" in err
+
+
+def test_the_shipped_weights_brighten_only_pixels_near_clipping():
+    """E (HDR) of the shipped weights is 0 on a bright surface that is not clipped (code value 240:
+    a white wall, a sky; the gate starts at 0.96 = 245) and the same as with the old gate (from
+    0.90) on clipped pixels (255), where the gate is 1 either way."""
+    import dataclasses
+
+    from rvr_addon.estimate.infer import SHIPPED_WEIGHTS
+
+    model = load_estimator(SHIPPED_WEIGHTS, backend="torch")
+    assert (model.net.config.gate_lo, model.net.config.gate_hi) == (0.96, 0.98)
+    rng = np.random.default_rng(0)
+    frame = np.clip(rng.normal(90, 20, (96, 160, 3)), 0, 255).astype(np.uint8)
+    frame[20:50, 20:80] = 240  # bright, not clipped
+    frame[60:70, 100:110] = 255  # a clipped light
+    _d, e = Estimator(model, context_pixels=0)(frame)
+    assert float(np.abs(e[22:48, 22:78]).max()) == 0.0
+    old = dataclasses.replace(model.net.config, gate_lo=0.90)
+    model.net.config = old
+    _d, e_old = Estimator(model, context_pixels=0)(frame)
+    assert float(e_old[22:48, 22:78].max()) > 0.0  # the old gate brightened the wall
+    np.testing.assert_array_equal(e[60:70, 100:110], e_old[60:70, 100:110])
