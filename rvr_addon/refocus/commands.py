@@ -75,7 +75,8 @@ def add_parser(sub) -> None:
                    help="where depth comes from (default auto: parallax where the camera moves, people, the network)")
     p.add_argument("--hfov", type=float, metavar="DEG", help="the camera's horizontal field of view (default 66)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window of the autofocus in s (default 2)")
-    p.add_argument("--causal", action="store_true", help="no look-ahead (what a camera could do live)")
+    p.add_argument("--causal", action="store_true",
+                   help="no look-ahead (what a camera could do live): the autofocus and the temporal filter see no later frame")
     from ..laaf.commands import add_calm_cuts_args
 
     add_calm_cuts_args(p)  # frames of --cuts are frames of the clip, whatever --start says

@@ -41,7 +41,8 @@ class RefocusSettings:
     reference lens wide open; 0 = no blur). spec: aperture shape. start / stop: frame range
     (0-based, stop exclusive). max_size: long side in px to work at (None/0: full size).
     side_by_side / preview: also write a before | after MP4 / a contact-sheet PNG there.
-    depth_method, hfov_deg: ``rvr estimate``'s. window_s, causal: LAAF's look-ahead.
+    depth_method, hfov_deg: ``rvr estimate``'s. window_s, causal: LAAF's look-ahead (causal also
+    makes the temporal filter causal: what a camera could do live).
     weights: estimator weights (None: the shipped ones). fps: of an image-sequence input.
     stabilize: run the temporal filter on D and E (paper 4.2)."""
 
@@ -216,8 +217,10 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     if s.stabilize:
         def build_stabilize():
             from ..temporal.job import StabilizeJob, StabilizeSettings
+            from ..temporal.settings import TemporalSettings
 
-            job = StabilizeJob(StabilizeSettings(cache=run.cache, input=run.clip))
+            window = "causal" if s.causal else TemporalSettings.window  # --causal: no frame after the current one
+            job = StabilizeJob(StabilizeSettings(cache=run.cache, input=run.clip, temporal=TemporalSettings(window=window)))
             return job if job.total else None
 
         stages.append(Stage("stabilize", STAGE_COST["stabilize"] * n * px, build_stabilize))

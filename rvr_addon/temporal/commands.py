@@ -23,8 +23,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--input", type=Path, metavar="VIDEO",
                    help="the clip for the optical flow (default: the source recorded in CACHE/meta.json)")
     p.add_argument("--window", choices=("causal", "centred"), default=d.window,
-                   help="causal: the current and M past frames (paper); centred: M/2 past and M/2 future frames "
-                        "(recorded video; lag-free, shorter flow chains). Default %(default)s")
+                   help="centred: M/2 past and M/2 future frames (recorded video; lag-free, shorter flow chains); "
+                        "causal: the current and M past frames (the paper's; what a camera could do live). "
+                        "Default %(default)s")
     p.add_argument("-M", "--frames", dest="m", type=int, default=d.m, metavar="M",
                    help="neighbouring frames in the window (paper: 6; default %(default)s)")
     p.add_argument("--delta", type=float, default=d.delta_px, metavar="PX",

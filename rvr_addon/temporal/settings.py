@@ -16,7 +16,12 @@ FLOW_PRESETS = ("ultrafast", "fast", "medium")
 class TemporalSettings:
     """Settings of the temporal filter (units in the names; see :mod:`.filter`'s docstring).
 
-    window: "causal" (paper) or "centred". m: frames besides the current one (paper: M = 6).
+    window: "centred" (the default: a recorded clip has its future; M/2 past and M/2 future
+    frames) or "causal" (the paper's: the current and M past frames, what a camera could do
+    live). Centred beats causal on every figure measured: the harness (flicker of simulated
+    estimates -64 % vs -51 %, PSNR 27.09 vs 26.80 dB), the rendered flicker of real clips (-46 %
+    vs -40 %) and the real depth of the depth system (HoloLens office 0.375 vs 0.393, TUM
+    fr1/rpy 0.663 vs 0.731; docs/temporal.md). m: frames besides the current one (paper: M = 6).
     delta_px: forward-backward threshold in px at the flow resolution, plus ``delta_rel``
     times the flow magnitude. photometric_tol: colour mismatch (fraction of full scale, mean
     over 5x5 px) beyond which a warped pixel is occluded; pixel_tol: the same for one pixel;
@@ -28,7 +33,7 @@ class TemporalSettings:
     link's valid mask, flow px (0: eroding erases small highlights from the masks).
     """
 
-    window: str = "causal"
+    window: str = "centred"
     m: int = 6
     delta_px: float = 1.0
     delta_rel: float = 0.05

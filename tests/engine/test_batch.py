@@ -91,7 +91,8 @@ def test_chunks_cover_the_clip_and_the_filter_reads_its_window():
     assert chunk_ranges(12, 0) == [(0, 12)] and chunk_ranges(12, 50) == [(0, 12)] and chunk_ranges(0, 4) == []
     assert chunk_ranges(100, 40) == [(0, 40), (40, 80), (80, 100)]
     assert chunk_ranges(81, 40) == [(0, 40), (40, 81)]  # a 1-frame tail joins the chunk before it
-    assert stabilize_reads(8, 12, 20, TemporalSettings()) == (2, 12)  # causal: M = 6 past frames
+    assert stabilize_reads(8, 12, 20, TemporalSettings(window="causal")) == (2, 12)  # causal: M = 6 past frames
+    assert TemporalSettings().window == "centred"  # the default: a recorded clip has its future
     assert stabilize_reads(8, 12, 20, CENTRED) == (5, 15)  # centred: 3 past, 3 future
     assert stabilize_reads(0, 4, 5, CENTRED) == (0, 5)
 

@@ -54,6 +54,14 @@ def test_one_command_writes_the_video_its_focus_file_a_sheet_and_a_before_after(
     work = list((reference / "rvr_cache").iterdir())
     assert len(work) == 1 and work[0].name.startswith("clip-")
     assert (work[0] / "cache" / "meta.json").is_file() and list(work[0].glob("focus-*.json"))
+    meta = json.loads((work[0] / "cache" / "meta.json").read_text())
+    assert meta["stabilized"]["settings"]["window"] == "centred"  # a recorded clip has its future
+
+
+def test_causal_means_no_later_frame_for_the_temporal_filter_either(clip, tmp_path):
+    assert main(["refocus", str(clip), "-o", str(tmp_path / "c.mp4"), "--causal", *FAST]) == 0
+    meta = json.loads(next((tmp_path / "rvr_cache").glob("*/cache/meta.json")).read_text())
+    assert meta["stabilized"]["settings"]["window"] == "causal"
 
 
 def test_a_second_run_reuses_the_depth_and_the_focus_decision(clip, reference, capsys):

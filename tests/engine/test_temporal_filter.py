@@ -144,8 +144,8 @@ def test_outlier_blob_is_rejected_not_averaged():
     ys, xs = np.mgrid[0:h, 0:w]
     blob = (xs - 60) ** 2 + (ys - 36) ** 2 <= 64
     ests = [(d_gt + np.float32(12.0) * blob if i == 6 else d_gt, e) for i in range(8)]
-    robust = run([img] * 8, ests)[6][1]
-    plain = run([img] * 8, ests, outlier_scale_d=1e3)[6][1]
+    robust = run([img] * 8, ests, window="causal")[6][1]  # frame 6 and the 6 before it: 7 frames
+    plain = run([img] * 8, ests, window="causal", outlier_scale_d=1e3)[6][1]
     err_robust = np.abs(robust - d_gt)[blob].mean()
     err_plain = np.abs(plain - d_gt)[blob].mean()
     assert err_plain == pytest.approx(12.0 / 7.0, rel=0.1)
@@ -178,7 +178,7 @@ def test_disoccluded_pixels_do_not_inherit_the_occluders_disparity(window):
 def test_scene_cut_restarts_the_window(caplog):
     clip = list(synthetic_clip(128, 72, 12, seed=5, cut_at=6))
     exact = [(f.disparity, f.exponent) for f in clip]
-    filt = TemporalFilter(TemporalSettings())
+    filt = TemporalFilter(TemporalSettings(window="causal"))  # the first frame after the cut has no past
     outs = []
     with caplog.at_level(logging.INFO, logger="rvr_addon.temporal.filter"):
         for f, (d, e) in zip(clip, exact):

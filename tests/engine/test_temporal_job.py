@@ -23,6 +23,9 @@ from rvr_addon.temporal.simulate import simulate_estimates, synthetic_clip
 N = 10
 
 
+CAUSAL = TemporalSettings(window="causal")
+"""The paper's window (P = 6 past frames): the resume tests count its warm-up frames."""
+
 def make_cache(root, n=N, indices=None):
     """An image-sequence clip (synthetic, known motion) and a cache of simulated estimates."""
     frames = root / "frames"
@@ -66,7 +69,7 @@ def test_cli_adds_stabilized_channels_and_keeps_the_raw_ones(made, capsys):
         np.testing.assert_array_equal(a["S.E.G"], e[..., 1])
         np.testing.assert_array_equal(a["S.C"], c)
     meta = json.loads((cache / "meta.json").read_text())
-    assert len(meta["stabilized"]["frames"]) == N and meta["stabilized"]["settings"]["window"] == "causal"
+    assert len(meta["stabilized"]["frames"]) == N and meta["stabilized"]["settings"]["window"] == "centred"
     assert meta["stabilized"]["frames"] == meta["frames"]  # sizes recorded for the rewritten files
     # the estimator still trusts every raw frame (same key, recorded sizes)
     reopened = ClipCache(cache, {k: meta[k] for k in ("format", "engine_version", "model_hash", "source_hash",
@@ -79,13 +82,13 @@ def test_interrupted_run_resumes_to_the_same_result(made, tmp_path):
     cache, frames, _ = made
     other = tmp_path / "copy"
     shutil.copytree(cache, other)
-    StabilizeJob(StabilizeSettings(cache=other)).run(progress=False)  # uninterrupted
-    job = StabilizeJob(StabilizeSettings(cache=cache))
+    StabilizeJob(StabilizeSettings(cache=other, temporal=CAUSAL)).run(progress=False)  # uninterrupted
+    job = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL))
     for _ in range(5):
         job.step()
     job.cancel()
     assert job.written == 5
-    resumed = StabilizeJob(StabilizeSettings(cache=cache))
+    resumed = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL))
     assert resumed.todo == set(range(5, N)) and resumed.plan == [(0, N)]  # warm-up from frame max(0, 5 - 6)
     resumed.run(progress=False)
     assert resumed.written == N - 5
@@ -98,13 +101,13 @@ def test_resume_warms_up_on_the_window_only(tmp_path):
     cache, frames, _ = make_cache(tmp_path, n=14)
     other = tmp_path / "copy"
     shutil.copytree(cache, other)
-    StabilizeJob(StabilizeSettings(cache=other)).run(progress=False)
-    job = StabilizeJob(StabilizeSettings(cache=cache))
+    StabilizeJob(StabilizeSettings(cache=other, temporal=CAUSAL)).run(progress=False)
+    job = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL))
     while job.written < 10:
         job.step()
     job.cancel()  # the write in flight (written behind the filter) completes: 10 or 11 frames stored
     assert job.written in (10, 11)
-    resumed = StabilizeJob(StabilizeSettings(cache=cache))
+    resumed = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL))
     assert resumed.plan == [(job.written - 6, 14)]  # P = 6 frames of warm-up before the first frame left
     resumed.run(progress=False)
     for a, b in zip(channels(cache, 14), channels(other, 14)):
@@ -117,11 +120,11 @@ def test_same_settings_skip_other_settings_recompute(made):
     again = StabilizeJob(StabilizeSettings(cache=cache))
     assert again.todo == set() and again.total == 0
     again.run(progress=False)
-    centred = StabilizeJob(StabilizeSettings(cache=cache, temporal=TemporalSettings(window="centred")))
-    assert centred.todo == set(range(N))
-    centred.run(progress=False)
-    assert json.loads((cache / "meta.json").read_text())["stabilized"]["settings"]["window"] == "centred"
-    forced = StabilizeJob(StabilizeSettings(cache=cache, temporal=TemporalSettings(window="centred"), force=True))
+    causal = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL))
+    assert causal.todo == set(range(N))
+    causal.run(progress=False)
+    assert json.loads((cache / "meta.json").read_text())["stabilized"]["settings"]["window"] == "causal"
+    forced = StabilizeJob(StabilizeSettings(cache=cache, temporal=CAUSAL, force=True))
     assert forced.todo == set(range(N))
 
 
