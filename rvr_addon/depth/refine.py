@@ -21,9 +21,10 @@ detector every stage shares, :class:`rvr_addon.temporal.cuts.CutDetector`). The 
 the refinement's difference, upsampled (its own edges are kept).
 
 HoloLens office (120 frames, moving camera), mean per-frame affine-invariant error of D: 0.400 ->
-0.37 (its first frames 0.95 / 0.79 / 0.82 -> 0.56 / 0.46 / 0.46); L = 2, 3, 4, 8, 16 scored 0.376,
-0.374, 0.372, 0.373, 0.373 (the decay forgets a value carried more than a few frames); without the
-forward step 0.378. A still camera has no parallax: its clips are not held back (no refiner).
+0.374 (its first frames 0.95 / 0.79 / 0.82 -> 0.57 / 0.47 / 0.46), flicker 0.124 -> 0.068. On the
+cue maps captured from that clip, without the cut check: L = 2, 3, 4, 8, 16 scored 0.376, 0.374,
+0.372, 0.373, 0.373 (the decay forgets a value carried more than a few frames); without the forward
+step 0.378. Only clips whose plan has the parallax cue (a moving camera) are refined.
 """
 from __future__ import annotations
 

@@ -220,7 +220,8 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
             from ..temporal.settings import TemporalSettings
 
             window = "causal" if s.causal else TemporalSettings.window  # --causal: no frame after the current one
-            job = StabilizeJob(StabilizeSettings(cache=run.cache, input=run.clip, temporal=TemporalSettings(window=window)))
+            job = StabilizeJob(StabilizeSettings(cache=run.cache, input=run.clip,
+                                                 temporal=TemporalSettings(window=window)))
             return job if job.total else None
 
         stages.append(Stage("stabilize", STAGE_COST["stabilize"] * n * px, build_stabilize))

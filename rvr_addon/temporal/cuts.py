@@ -110,13 +110,14 @@ class CutDetector:
         elif (d := float(np.mean(np.abs(cur[2] - prev[2])))) < quiet_limit(self.settings):
             self.fail.append(d / self.settings.photometric_tol)  # a bound, see quiet_limit
         else:
-            fail = link_checks(self.flow, prev[1], cur[1], prev[2], cur[2], prev[3], cur[3], self.settings).fail_fraction
+            pair = (prev[1], cur[1], prev[2], cur[2], prev[3], cur[3])
+            fail = link_checks(self.flow, *pair, self.settings).fail_fraction
             if fail > self.settings.cut_fraction and self.confirm is not None:
-                # a candidate: fast motion (a head-mounted or shaken camera) defeats the fast flow too
+                # a candidate: fast motion (a head-mounted or shaken camera) defeats the fast flow;
+                # the better one decides
                 if self._confirm_flow is None:
                     self._confirm_flow = fl.DISFlow(self.confirm)
-                fail = link_checks(self._confirm_flow, prev[1], cur[1], prev[2], cur[2], prev[3], cur[3],
-                                   self.settings).fail_fraction
+                fail = link_checks(self._confirm_flow, *pair, self.settings).fail_fraction
             self.fail.append(fail)
         if self.fail[-1] > self.settings.cut_fraction:
             self.cuts.append(index)
