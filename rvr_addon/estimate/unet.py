@@ -37,8 +37,8 @@ our render's margin over the best Gaussian -0.364 dB -> -0.009 dB with the gate 
 (2026-12-07, ``scripts/set_hdr_gate.py``; the HDR of clipped pixels is unchanged). E is also
 bounded: the radiance gain ``exp(50 E)`` is at most ``max_gain`` (1000 by default; the harness's
 brightest emitters are ~300x the 8-bit white). A softplus, the first choice, is unbounded: where
-the render of a light is itself clipped the loss has no gradient on E, Adam's momentum kept pushing it up, and exp(50 E) overflowed float32 within 40
-steps on the tiny test scene. The logits' bias starts at -6: E = E_max * 0.0025 (a x1.017 gain)
+the render of a light is itself clipped the loss has no gradient on E, Adam's momentum kept
+pushing it up, and exp(50 E) overflowed float32 within 40 steps on the tiny test scene. The logits' bias starts at -6: E = E_max * 0.0025 (a x1.017 gain)
 at clipped pixels, exactly 0 elsewhere.
 
 Disparity unit of the network: ``D_rel``, percent of the frame width (``D_rel = 1`` is a blur
