@@ -27,19 +27,19 @@ The paper's last layer yields 3 + N channels at one resolution; here the N grid 
 from the 1/8 level (a coarse grid is what makes bilateral slicing edge-aware at all, as in
 HDRNet) and the 3 E channels from the 1/4 level.
 
-HDR exponent: ``E = E_max * sigmoid(z) * gate(I)`` with ``E_max = ln(max_gain) / K_HDR``.
-Recovery only ever brightens clipped pixels (an unclipped 8-bit value is already the radiance
-up to quantisation), so E >= 0, and it is gated by ``gate = smoothstep(0.96, 0.98, max_rgb(I))``
-on the sRGB input: 0 below code value ~245, 1 from ~250 (JPEG/H.264 keep clipped areas a few
-codes below 255). The first shipped weights were trained with 0.90 (from ~230); on the real
-f/16 -> f/1.8 photos that brightened bright surfaces that are not lights (a white wall, a sky):
-our render's margin over the best Gaussian -0.364 dB -> -0.009 dB with the gate from 245
-(2026-12-07, ``scripts/set_hdr_gate.py``; the HDR of clipped pixels is unchanged). E is also
-bounded: the radiance gain ``exp(50 E)`` is at most ``max_gain`` (1000 by default; the harness's
-brightest emitters are ~300x the 8-bit white). A softplus, the first choice, is unbounded: where
-the render of a light is itself clipped the loss has no gradient on E, Adam's momentum kept
-pushing it up, and exp(50 E) overflowed float32 within 40 steps on the tiny test scene. The logits' bias starts at -6: E = E_max * 0.0025 (a x1.017 gain)
-at clipped pixels, exactly 0 elsewhere.
+HDR exponent: ``E = E_max * sigmoid(z) * gate(I)`` with ``E_max = ln(max_gain) / K_HDR``. Recovery
+only ever brightens clipped pixels (an unclipped 8-bit value is already the radiance up to
+quantisation), so E >= 0, and it is gated by ``gate = smoothstep(0.96, 0.98, max_rgb(I))`` on the
+sRGB input: 0 below code value ~245, 1 from ~250 (JPEG/H.264 keep clipped areas a few codes below
+255). The first shipped weights were trained with 0.90 (from ~230); on the real f/16 -> f/1.8
+photos that brightened bright surfaces that are not lights (a white wall, a sky): our render's
+margin over the best Gaussian -0.364 dB -> -0.009 dB with the gate from 245 (2026-12-07,
+``scripts/set_hdr_gate.py``; the HDR of clipped pixels is unchanged). E is also bounded: the
+radiance gain ``exp(50 E)`` is at most ``max_gain`` (1000 by default; the harness's brightest
+emitters are ~300x the 8-bit white). A softplus, the first choice, is unbounded: where the render
+of a light is itself clipped the loss has no gradient on E, Adam's momentum kept pushing it up, and
+exp(50 E) overflowed float32 within 40 steps on the tiny test scene. The logits' bias starts at -6:
+E = E_max * 0.0025 (a x1.017 gain) at clipped pixels, exactly 0 elsewhere.
 
 Disparity unit of the network: ``D_rel``, percent of the frame width (``D_rel = 1`` is a blur
 radius of W/100 px at aperture scale 1). It does not change when a frame is resized, so the
