@@ -451,7 +451,8 @@ def add_eval_estimator_parser(sub) -> None:
                    help="score the depth system on a real RGB-D clip with poses (HoloLens / TUM layout, "
                         "../shared/data/real_video_depth/...); keys estimate.video.<clip>.<method>.* (repeatable)")
     p.add_argument("--depth-methods", default="auto,network", metavar="M,M",
-                   help="with --real-video: depth methods as in rvr estimate --depth-method (default auto,network)")
+                   help="with --real-video: depth methods as in rvr estimate --depth-method (default auto,network); "
+                        "M+centred / M+causal: M's D after rvr stabilize with that window (what rvr refocus renders)")
     p.add_argument("--video-frames", type=int, metavar="N", help="with --real-video: at most N frames a clip")
     p.add_argument("--hfov", type=float, metavar="DEG",
                    help="field of view for the geometric cues, as rvr estimate --hfov (default: its default)")

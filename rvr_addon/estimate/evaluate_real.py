@@ -38,6 +38,10 @@ Per method, keys ``estimate.video.<clip>.<M>.``:
   in the plan, ``carried_frames`` (frames that took the depth carried along the flow) and
   ``refined_frames`` (frames whose depth the frames after them changed, :mod:`..depth.refine`).
 
+A method ``M+centred`` or ``M+causal`` is M's D after the temporal filter (``rvr stabilize``, paper
+4.2) with that window: the D that ``rvr refocus`` renders with (``+centred``, the default; ``+causal``
+with ``--causal``).
+
 ``estimate.video.<clip>.ramp_error`` / ``.ramp_clip_affine_error`` are the vertical ramp's.
 
 **Real aperture photos** (``--aperture DIR``: ``vabd_*/{input,1_8}.jpg``, ``ebb_*/{input,
@@ -76,6 +80,8 @@ DepthFn = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 """(H, W, 3) uint8 RGB -> (D (H, W) float32 DESIGN units, E (H, W, 3) float32)."""
 PICTURE_METHODS = ("network", "auto", "people")
 VIDEO_METHODS = ("auto", "parallax", "people", "network")
+VIDEO_FILTERS = ("centred", "causal")
+"""Temporal-filter windows a ``--depth-methods`` entry may name after a ``+`` (``auto+centred``)."""
 DEPTH_TOLERANCE = 0.05
 """Relative depth agreement for a pixel to count as the same static point in the next frame."""
 MIN_MATCHES = 100
@@ -391,8 +397,10 @@ def evaluate_video_clip(root: str | Path, methods: list[str], network: DepthFn, 
     if n < 2:
         raise InputError(f"--real-video {root}: {n} frame(s); the figures need at least 2")
     for m in methods:
-        if m not in VIDEO_METHODS:
-            raise InputError(f"--depth-methods {m!r}: choose from {', '.join(VIDEO_METHODS)}")
+        base, _, window = m.partition("+")
+        if base not in VIDEO_METHODS or (window and window not in VIDEO_FILTERS):
+            raise InputError(f"--depth-methods {m!r}: choose from {', '.join(VIDEO_METHODS)}, each optionally with "
+                             f"+{' or +'.join(VIDEO_FILTERS)} (the D after the temporal filter, e.g. auto+centred)")
     key = clip_key(root)
     pre = f"estimate.video.{key}"
     summary: dict[str, float] = {pre + ".frames": n}
@@ -426,7 +434,14 @@ def evaluate_video_clip(root: str | Path, methods: list[str], network: DepthFn, 
     summary[pre + ".matched_share"] = float(np.mean([len(m[0]) for m in matches]) / (prev.rgb.shape[0] * prev.rgb.shape[1]))
     plans = {}
     for method in methods:
-        frames, plan, stream = system_frames(method, clip, n, network, hfov_deg)
+        base, _, window = method.partition("+")
+        frames, plan, stream = system_frames(base, clip, n, network, hfov_deg)
+        if window:  # the D the renderer gets: the temporal filter over the depth system's frames
+            from ..temporal.filter import stabilize_stream
+            from ..temporal.settings import TemporalSettings
+
+            frames = ((d, e) for _i, d, e, _c in stabilize_stream(clip.rgb_frames(0, n), frames,
+                                                                   TemporalSettings(window=window)))
         plans[method] = plan
         errs, pool_d, pool_q, pairs, d_std = [], [], [], [], RunningStd()
         prev_d = prev_q = None

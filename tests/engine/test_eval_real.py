@@ -262,6 +262,27 @@ def test_video_clip_figures_with_a_fixed_network(tmp_path):
         er.evaluate_video_clip(tmp_path / "nothing", ["network"], true_depth)
 
 
+def test_a_method_after_the_temporal_filter(tmp_path):
+    """``network+centred``: the network's D after rvr stabilize's filter (what the renderer gets);
+    the filter averages the noise maps over the window, so the flicker drops; unknown names fail."""
+    root = tmp_path / "hololens_synth"
+    _write_hololens(root, frames=6)
+    rng = np.random.default_rng(5)
+
+    def noise(frame, _state={"i": 0}):  # the true D with 5 % noise, new every frame
+        d = -1.0 / _plane_depth(_pose(0.05 * (_state["i"] % 6)))  # each method runs the 6 frames again
+        _state["i"] += 1
+        return (d * (1.0 + 0.05 * rng.normal(size=d.shape))).astype(np.float32), np.zeros(frame.shape, np.float32)
+
+    summary, md = er.evaluate_video_clip(root, ["network", "network+centred"], noise)
+    k = "estimate.video.hololens"
+    assert summary[f"{k}.network+centred.flicker"] < 0.8 * summary[f"{k}.network.flicker"]
+    assert any("network+centred" in line for line in md)
+    for bad in ("network+sideways", "nothing+centred"):
+        with pytest.raises(InputError, match="depth-methods"):
+            er.evaluate_video_clip(root, [bad], noise)
+
+
 # ------------------------------------------------------------------------------ aperture
 
 
