@@ -12,8 +12,9 @@ stderr):
   ``estimate.real.<set>.affine_error`` / ``.ramp_error`` / ``.better_than_ramp_share``,
   ``estimate.real.middlebury.*`` (46 views of 25 scenes), ``estimate.motorcycle.*``;
 - **video**: ``--real-video`` on hololens_office and tum_fr1_rpy_window with each of
-  ``--depth-methods``: ``estimate.video.<clip>.<method>.{affine_error, clip_affine_error,
-  flicker, ...}`` and the ramp;
+  ``--depth-methods`` (default ``auto,auto+centred,network``; ``auto+centred`` is auto's D after the
+  default temporal filter, the D ``rvr refocus`` renders with): ``estimate.video.<clip>.<method>.{affine_error,
+  clip_affine_error, flicker, ...}`` and the ramp;
 - **aperture**: ``--aperture DATA/real_depth/aperture``: ``estimate.aperture.<scene>.psnr_*_db``,
   ``estimate.aperture.mean_margin_db`` (ours - Gaussian) and ``mean_margin_ramp_db``.
 
@@ -40,7 +41,9 @@ def main() -> None:
     ap.add_argument("--weights", type=Path, help="estimator weights (default: the shipped ones)")
     ap.add_argument("--weights-per-scene", type=Path, metavar="JSON", help="fold models for the real pictures")
     ap.add_argument("--depth-method", default="network", help="single pictures: network | auto (default network)")
-    ap.add_argument("--depth-methods", default="auto,network", help="video: methods (default auto,network)")
+    ap.add_argument("--depth-methods", default="auto,auto+centred,network",
+                    help="video: methods (default auto,auto+centred,network; auto+centred: auto's D after the "
+                         "default temporal filter, what rvr refocus renders with)")
     ap.add_argument("--video-frames", type=int, help="at most N frames a clip (default all)")
     ap.add_argument("--aperture-size", type=int, default=512)
     ap.add_argument("--parts", default="pictures,video,aperture")
