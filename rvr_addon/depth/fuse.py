@@ -43,6 +43,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from .carry import carry_along, flow_maps_into
 from .cues import CueMap, lens_constant
 
 
@@ -110,7 +111,14 @@ class FusedDepth:
     px), when the carry computed that flow (:mod:`.refine` reuses it); else None."""
 
 
-def _resize(a: np.ndarray, size: tuple[int, int], nearest: bool = False) -> np.ndarray:
+def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
+    """(w, h) a (width, height) frame is fused at: its long side at most ``long_side`` (never enlarged)."""
+    f = min(1.0, long_side / max(width, height))
+    return max(int(round(width * f)), 1), max(int(round(height * f)), 1)
+
+
+def resize(a: np.ndarray, size: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """``a`` at ``size`` = (w, h): area resampling to shrink, bilinear to enlarge (nearest if asked)."""
     import cv2
 
     if (a.shape[1], a.shape[0]) == size:
@@ -123,8 +131,8 @@ def _resize_masked(q: np.ndarray, c: np.ndarray, size: tuple[int, int]) -> tuple
     """NaN-aware area resize of a cue: (q, confidence) at ``size``."""
     ok = np.isfinite(q) & (c > 0)
     w = np.where(ok, c, 0.0).astype(np.float32)
-    num = _resize(np.where(ok, q * w, 0.0).astype(np.float32), size)
-    den = _resize(w, size)
+    num = resize(np.where(ok, q * w, 0.0).astype(np.float32), size)
+    den = resize(w, size)
     qs = np.where(den > 1e-6, num / np.maximum(den, 1e-6), np.nan).astype(np.float32)
     return qs, np.clip(den, 0.0, 1.0).astype(np.float32)
 
@@ -233,19 +241,16 @@ class DepthFuser:
             return None
         import cv2
 
-        from ..temporal.flow import PRESETS, dis_calc, flow_maps, upsample_flow
+        from ..temporal.flow import PRESETS
 
         prev_gray, prev_luma, prev_q, prev_c = self._carry
         if prev_gray.shape != gray.shape or prev_q.shape != luma.shape:
             return None
         if self._dis is None:
             self._dis = cv2.DISOpticalFlow_create(PRESETS["medium"])
-        maps = self._to_prev = flow_maps(upsample_flow(dis_calc(self._dis, gray, prev_gray), size))
-        # q, confidence and luma of the previous frame in one remap; outside it the confidence is 0
-        q, c, then = cv2.split(cv2.remap(np.dstack([prev_q, prev_c, prev_luma]), maps, None, cv2.INTER_LINEAR,
-                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0))
-        photo = np.exp(np.abs(then - luma) * np.float32(-1.0 / self.settings.carry_photo))
-        conf = np.float32(self.settings.carry_weight) * photo * c
+        maps = self._to_prev = flow_maps_into(self._dis, gray, prev_gray, size)
+        s = self.settings
+        q, conf = carry_along(maps, prev_q, prev_c, prev_luma, luma, s.carry_photo, s.carry_weight)
         return q, np.clip(conf, 0.0, 1.0)
 
     def _behind_people(self, people: CueMap, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -284,11 +289,9 @@ class DepthFuser:
         s = self.settings
         h, w = frame.shape[:2]
         self.used["frames"] += 1
-        long_side = max(h, w)
-        f = min(1.0, s.analysis_long_side / long_side)
-        size = (max(int(round(w * f)), 1), max(int(round(h * f)), 1))
-        guide = _resize(frame, size)
-        d_net = _resize(network_d.astype(np.float32), size)
+        size = analysis_size(w, h, s.analysis_long_side)
+        guide = resize(frame, size)
+        d_net = resize(network_d.astype(np.float32), size)
         by_name = {}
         for cue in cues:
             if cue.coverage > 0:
@@ -306,7 +309,7 @@ class DepthFuser:
             from ..temporal.flow import flow_size, to_flow_gray
 
             gray = to_flow_gray(frame, flow_size(w, h, s.carry_flow_side))
-            luma = _resize(gray, size).astype(np.float32)
+            luma = resize(gray, size).astype(np.float32)
             carried = self._carried(gray, luma, size)
         if carried is not None:  # the scene's geometry carried in where this frame's parallax is missing or less sure
             q_c, c_c = carried

@@ -34,7 +34,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .fuse import FusedDepth, FusionSettings
+from .carry import carry_along, flow_maps_into
+from .fuse import FusedDepth, FusionSettings, analysis_size, resize
 
 Item = tuple[np.ndarray, np.ndarray, np.ndarray, FusedDepth]
 """What :class:`~.system.DepthStream` yields per frame: (frame RGB uint8, D, E, FusedDepth)."""
@@ -54,21 +55,6 @@ class _Held:
     cut_before: bool = False            # this frame starts a new shot
 
 
-def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
-    """(w, h) of the fuser's analysis size for a (width, height) frame (never enlarged)."""
-    f = min(1.0, long_side / max(width, height))
-    return max(int(round(width * f)), 1), max(int(round(height * f)), 1)
-
-
-def _resize(a: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    import cv2
-
-    if (a.shape[1], a.shape[0]) == tuple(size):
-        return a
-    interp = cv2.INTER_AREA if size[0] < a.shape[1] else cv2.INTER_LINEAR
-    return cv2.resize(a, tuple(size), interpolation=interp)
-
-
 def carry_step(own_d: np.ndarray, own_c: np.ndarray, own_luma: np.ndarray, other_d: np.ndarray,
                other_c: np.ndarray, other_luma: np.ndarray, maps: np.ndarray, photo: float,
                decay: float) -> tuple[np.ndarray, np.ndarray]:
@@ -78,13 +64,9 @@ def carry_step(own_d: np.ndarray, own_c: np.ndarray, own_luma: np.ndarray, other
     other_*: the neighbour's; maps (h, w, 2) float32: where each of this frame's pixels lies in
     the neighbour (absolute px). Returns (D, confidence): the confidence-weighted mean, with
     the carried weight = its confidence x ``decay`` x exp(-|luma difference| / ``photo``)
-    (outside the neighbour: 0), and the larger of the two weights.
+    (:func:`.carry.carry_along`; outside the neighbour: 0), and the larger of the two weights.
     """
-    import cv2
-
-    q, c, then = cv2.split(cv2.remap(np.dstack([other_d, other_c, other_luma]), maps, None, cv2.INTER_LINEAR,
-                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0))
-    cw = np.float32(decay) * c * np.exp(np.abs(then - own_luma) * np.float32(-1.0 / photo))
+    q, cw = carry_along(maps, other_d, other_c, other_luma, own_luma, photo, decay)
     total = own_c + cw
     safe = np.maximum(total, np.float32(1e-6))
     d = np.where(total > 1e-6, (own_c * own_d + cw * q) / safe, own_d)
@@ -117,11 +99,11 @@ class ClipRefiner:
         """Maps sampling gray frame b at frame a's pixels, at the analysis ``size``."""
         import cv2
 
-        from ..temporal.flow import PRESETS, dis_calc, flow_maps, upsample_flow
+        from ..temporal.flow import PRESETS
 
         if self._dis is None:
             self._dis = cv2.DISOpticalFlow_create(PRESETS["medium"])
-        return flow_maps(upsample_flow(dis_calc(self._dis, a, b), size))
+        return flow_maps_into(self._dis, a, b, size)
 
     def _hold(self, item: Item) -> _Held:
         from ..temporal.flow import flow_size, to_flow_gray
@@ -134,9 +116,9 @@ class ClipRefiner:
         # only geometry from the camera's motion is shared between frames: the people cue is the
         # frame's own (metric, from face size), and a frame without parallax takes its neighbours'
         geometric = "parallax" in fused.cues or "carried" in fused.cues
-        c = _resize(fused.confidence.astype(np.float32), size) if geometric else np.zeros(size[::-1], np.float32)
-        return _Held(item, _resize(d_full.astype(np.float32), size), np.clip(c, 0.0, 1.0),
-                     gray, _resize(gray, size).astype(np.float32), cut_before=self._cuts.push(frame))
+        c = resize(fused.confidence.astype(np.float32), size) if geometric else np.zeros(size[::-1], np.float32)
+        return _Held(item, resize(d_full.astype(np.float32), size), np.clip(c, 0.0, 1.0),
+                     gray, resize(gray, size).astype(np.float32), cut_before=self._cuts.push(frame))
 
     def _output(self) -> Item:
         """Refine and release the oldest held frame."""
@@ -157,7 +139,6 @@ class ClipRefiner:
         if prev is not None and not t.cut_before and t.to_prev is not None:
             d, c = carry_step(d, c, t.luma, prev.d, prev.c, prev.luma, t.to_prev, s.refine_photo, s.refine_decay)
         self._last_out = _Held(t.item, d, c, t.gray, t.luma)
-        t.to_next = None  # the chain's maps are no longer needed
         frame, d_full, e, fused = t.item
         if np.array_equal(d, t.d):
             return t.item
@@ -166,8 +147,8 @@ class ClipRefiner:
         if (w, h) == (d.shape[1], d.shape[0]):
             d_out, c_out = d, c
         else:  # the full-size D keeps its own edges and takes the refinement's difference
-            d_out = (d_full + _resize(d - t.d, (w, h))).astype(np.float32)
-            c_out = _resize(c, (w, h))
+            d_out = (d_full + resize(d - t.d, (w, h))).astype(np.float32)
+            c_out = resize(c, (w, h))
         return frame, d_out, e, replace(fused, disparity=d_out, confidence=c_out.astype(np.float32),
                                         info={**fused.info, "refined": True})
 
