@@ -18,6 +18,11 @@ the picture's own unit (stereo px: a picture weighs by its depth contrast) or ``
 (each picture's target divided by its mean absolute deviation: every picture weighs alike, like
 the figure), plus ``--w-l2`` x a pull of the head's weights towards the starting ones.
 Augmentation: horizontal flips and trunk sizes ``--scales`` x the inference size.
+
+``--procedural DIR`` (a dataset of ``rvr procedural``, repeatable) mixes ray-cast rooms, streets and
+close-ups with exact disparity into the fit: a ``--procedural-share`` of each batch's pictures,
+their targets brought to the real pictures' median spread, so the head is not fitted to the real
+set's tabletop layouts alone.
 """
 from __future__ import annotations
 
@@ -108,6 +113,40 @@ def prepare(net, pictures, max_pixels: int, scales: tuple[float, ...] = (1.0,), 
     return out
 
 
+def prepare_procedural(net, folders: list[Path], max_pixels: int, flips: bool = True, limit: int = 0,
+                       progress: bool = False) -> dict[str, list[PictureFeatures]]:
+    """{frame name: [its variants]} of ``rvr procedural`` datasets, as :func:`prepare` does for the
+    real pictures; the target is the frame's exact D (DESIGN px at its width: larger = farther, the
+    orientation of the real pictures' targets). limit: at most this many frames in all (0: every one)."""
+    import cv2
+
+    from .data import SkipReport, procedural_sources, read_gt_disparity, resize_disparity
+
+    report = SkipReport()
+    sources = [src for folder in folders for src in procedural_sources(Path(folder), report)]
+    if limit > 0:
+        sources = sources[:limit]
+    out: dict[str, list[PictureFeatures]] = {}
+    for i, src in enumerate(sources):
+        rgb = cv2.cvtColor(cv2.imread(str(src.input), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        d = read_gt_disparity(src.gt_disparity)
+        variants = []
+        for flip in ((False, True) if flips else (False,)):
+            img = np.ascontiguousarray(rgb[:, ::-1]) if flip else rgb
+            t = np.ascontiguousarray(d[:, ::-1] if flip else d, dtype=np.float32)
+            feats, guide, extent, size = _features(net, img, max_pixels)
+            small_guide = F.interpolate(guide, size=(size[1], size[0]), mode="area")
+            small_tgt = torch.from_numpy(np.ascontiguousarray(resize_disparity(t, size)))[None, None]
+            variants.append(PictureFeatures(src.name, "procedural", feats, guide, extent,
+                                            torch.from_numpy(t)[None, None], -t, small_guide, small_tgt))
+        out[src.name] = variants
+        if progress:
+            print(f"\rprocedural features {i + 1}/{len(sources)}", end="", file=sys.stderr)
+    if progress:
+        print(file=sys.stderr)
+    return out
+
+
 def head_disparity(weight: torch.Tensor, bias: torch.Tensor, f: PictureFeatures, cfg,
                    small: bool = False) -> torch.Tensor:
     """D_rel (1, 1, H, W) of a prepared picture with these grid-head parameters (as the net does;
@@ -143,10 +182,20 @@ class FitSettings:
     w_l2: float = 0.0
     w_grad: float = 0.5
     seed: int = 0
+    procedural_share: float = 0.0
 
 
-def fit_head(net, train: list[list[PictureFeatures]], fs: FitSettings) -> tuple[torch.Tensor, torch.Tensor]:
-    """Adam on the grid head's weight and bias over the prepared training pictures."""
+def _spread(t: torch.Tensor) -> float:
+    """Mean absolute deviation from the median of a target's known values."""
+    v = t[torch.isfinite(t)]
+    return float((v - v.median()).abs().mean().clamp(min=1e-6)) if v.numel() else 1.0
+
+
+def fit_head(net, train: list[list[PictureFeatures]], fs: FitSettings,
+             procedural: list[list[PictureFeatures]] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Adam on the grid head's weight and bias over the prepared training pictures; with
+    ``procedural`` frames, each batch draws ``fs.procedural_share`` of its pictures from them, their
+    targets brought to the real pictures' median spread (or to 1 with ``fs.normalise``)."""
     from .losses import LossWeights, supervised_loss
 
     cfg = net.config
@@ -156,16 +205,17 @@ def fit_head(net, train: list[list[PictureFeatures]], fs: FitSettings) -> tuple[
     opt = torch.optim.Adam([weight, bias], lr=fs.lr)
     lw = LossWeights(sup_disparity=1.0, sup_disparity_grad=fs.w_grad)
     rng = np.random.default_rng(fs.seed)
-    norms = {}
-    for variants in train:
-        t = variants[0].train_target
-        v = t[torch.isfinite(t)]
-        norms[variants[0].name] = float((v - v.median()).abs().mean().clamp(min=1e-6)) if fs.normalise else 1.0
+    norms = {v[0].name: _spread(v[0].train_target) if fs.normalise else 1.0 for v in train}
+    procedural = procedural or []
+    if procedural:
+        real_spread = 1.0 if fs.normalise else float(np.median([_spread(v[0].train_target) for v in train]))
+        norms.update({v[0].name: _spread(v[0].train_target) / real_spread for v in procedural})
     for _ in range(fs.iterations):
         opt.zero_grad(set_to_none=True)
         total = weight.new_zeros(())
         for _ in range(fs.batch):
-            variants = train[int(rng.integers(len(train)))]
+            pool = procedural if procedural and fs.procedural_share > 0 and rng.random() < fs.procedural_share else train
+            variants = pool[int(rng.integers(len(pool)))]
             f = variants[int(rng.integers(len(variants)))]
             d = head_disparity(weight, bias, f, cfg, small=True)
             sup = supervised_loss(d, f.train_target / norms[f.name], d.new_zeros((1, 3) + d.shape[-2:]), None, None,
@@ -213,6 +263,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-flips", action="store_true")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--procedural", type=Path, action="append", default=[],
+                    help="an `rvr procedural` dataset to mix into the fit (repeatable)")
+    ap.add_argument("--procedural-share", type=float, default=0.3,
+                    help="share of each batch drawn from --procedural frames (default 0.3)")
+    ap.add_argument("--procedural-limit", type=int, default=0, help="at most this many procedural frames (0: all)")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     t0 = time.perf_counter()
@@ -223,10 +278,13 @@ def main(argv: list[str] | None = None) -> int:
     pictures = find_real_pictures(a.real)
     scales = tuple(float(s) for s in a.scales.split(","))
     prepared = prepare(net, pictures, max_pixels, scales, not a.no_flips, progress=True)
-    fs = FitSettings(a.iterations, a.lr, a.batch, a.normalise, a.w_l2, a.w_grad, a.seed)
+    fs = FitSettings(a.iterations, a.lr, a.batch, a.normalise, a.w_l2, a.w_grad, a.seed,
+                     a.procedural_share if a.procedural else 0.0)
+    procedural = list(prepare_procedural(net, a.procedural, max_pixels, not a.no_flips, a.procedural_limit,
+                                         progress=True).values()) if a.procedural else None
     a.output.mkdir(parents=True, exist_ok=True)
     cfg = net.config
-    result: dict = {"settings": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()},
+    result: dict = {"settings": _settings(a),
                     "max_pixels": max_pixels}
     if a.cv:
         folds = scene_folds(pictures, a.cv)
@@ -236,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
         for k in chosen:
             held = set(folds[k])
             train = [v for n, v in prepared.items() if v[0].scene not in held]
-            weight, bias = fit_head(net, train, fs)
+            weight, bias = fit_head(net, train, fs, procedural)
             if a.export_folds:
                 _export(net, weight, bias, a.output / f"fold{k}" / "estimator.pt", record, a, t0, len(train),
                         max_pixels, start_wall_s)
@@ -255,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
         result["cv_per_fold"] = {k: _summary([r for r in rows if r["fold"] == k]) for k in chosen}
         print(f"leave-scene-out: {result['cv']}", file=sys.stderr)
     if not a.no_all:
-        weight, bias = fit_head(net, list(prepared.values()), fs)
+        weight, bias = fit_head(net, list(prepared.values()), fs, procedural)
         _export(net, weight, bias, a.output / "estimator.pt", record, a, t0, len(pictures), max_pixels, start_wall_s)
     result["wall_s"] = time.perf_counter() - t0
     (a.output / "head_fit.json").write_text(json.dumps(result, indent=1))
@@ -274,12 +332,21 @@ def _export(net, weight, bias, path: Path, record: dict, a, t0: float, n_picture
     with torch.no_grad():
         out.grid_head.weight.copy_(weight)
         out.grid_head.bias.copy_(bias)
-    settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(a).items()}
-    training = {"head_fit": settings, "init_from": record, "real_pictures": n_pictures,
+    training = {"head_fit": _settings(a), "init_from": record, "real_pictures": n_pictures,
                 "note": "grid_head refitted on real pictures; every other layer (and so E) unchanged"}
     export_weights(out, path, iterations=(record.get("iterations") or 0),
                    wall_time_s=start_wall_s + time.perf_counter() - t0, training=training,
                    inference_max_pixels=max_pixels)
+
+
+def _settings(a: argparse.Namespace) -> dict:
+    """The command line's settings as JSON values (paths as strings)."""
+    def plain(v):
+        if isinstance(v, Path):
+            return str(v)
+        return [plain(x) for x in v] if isinstance(v, list) else v
+
+    return {k: plain(v) for k, v in vars(a).items()}
 
 
 def _summary(rows: list[dict]) -> dict:

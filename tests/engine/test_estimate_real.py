@@ -224,3 +224,39 @@ def test_head_fit_cv_and_export(real_root: Path, tmp_path: Path):
         a, b = old.net(img), new.net(img)
     assert torch.equal(a.exponent, b.exponent) and float(a.exponent.max()) > 0
     assert not torch.equal(a.disparity_rel, b.disparity_rel)
+
+
+def test_head_fit_mixes_procedural_frames(real_root: Path, tmp_path: Path):
+    """head_fit --procedural: the frames of an `rvr procedural` dataset are prepared with their exact D
+    (larger = farther, the real targets' orientation), each batch draws its share from them (a share of
+    0 never reads them, so the fit equals the real-only one), and the settings are recorded."""
+    import json
+
+    import torch
+
+    from rvr_addon.cli import main as rvr
+    from rvr_addon.estimate import head_fit
+    from rvr_addon.estimate.infer import load_estimator
+
+    data = tmp_path / "proc"
+    assert rvr(["procedural", "-o", str(data), "--frames", "2", "--seed", "3", "-q"]) == 0
+    start = _tiny_start(tmp_path)
+    net, _ = head_fit._load(start, False)
+    frames = head_fit.prepare_procedural(net, [data], 1200)
+    assert len(frames) == 2 and all(len(v) == 2 for v in frames.values())  # + the flipped copy
+    f = next(iter(frames.values()))[0]
+    assert f.scene == "procedural" and torch.isfinite(f.train_target).any()
+    assert np.allclose(f.q, -f.target[0, 0].numpy(), equal_nan=True)
+
+    fits = {}
+    for name, share in (("real", None), ("zero", "0"), ("mixed", "1")):
+        args = ["--real", str(real_root), "--init-from", str(start), "-o", str(tmp_path / name),
+                "--iterations", "3", "--lr", "1e-2"]
+        if share is not None:
+            args += ["--procedural", str(data), "--procedural-share", share]
+        assert head_fit.main(args) == 0
+        fits[name] = load_estimator(tmp_path / name / "estimator.pt").net.grid_head.weight.detach()
+    assert torch.equal(fits["real"], fits["zero"])
+    assert not torch.equal(fits["real"], fits["mixed"])
+    rep = json.loads((tmp_path / "mixed" / "head_fit.json").read_text())
+    assert rep["settings"]["procedural"] == [str(data)] and rep["settings"]["procedural_share"] == 1.0
