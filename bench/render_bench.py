@@ -11,7 +11,9 @@ it (``render.fast.1080p_real_depth.*``: noisy real depth activates more tiles; i
 ``psnr_vs_exact_db`` against the exact path on the same depth), the exact path without
 half-resolution layers (``render.fast_exact.*``, and ``psnr_vs_exact_db`` of the default against it),
 and the reference timing of the same run, one ``cv2.GaussianBlur`` (sigma 16) of the
-RGB frame (``reference.gauss16.<size>.s``; ``render.fast.<size>.gauss_ratio`` = fast / that).
+RGB frame, timed alternately with the render (``reference.gauss16.<size>.s``;
+``render.fast.<size>.gauss_ratio`` = fast / that; the real-depth ratio against its own alternated
+blurs).
 The last line of stdout is the JSON of DESIGN.md's keys.
 """
 from __future__ import annotations
@@ -77,6 +79,22 @@ def seconds_per_frame(fn, repeats: int) -> float:
     return float(np.median(times))
 
 
+def paired_seconds(fn, ref, repeats: int) -> tuple[float, float]:
+    """Median seconds of ``fn`` and of the reference ``ref``, run alternately (after one warm-up
+    each), so that a change of the machine's load between them moves both alike."""
+    fn()
+    ref()
+    a, b = [], []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        a.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        ref()
+        b.append(time.perf_counter() - t)
+    return float(np.median(a)), float(np.median(b))
+
+
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR in dB of two images in [0, 1]."""
     mse = float(np.mean((a.astype(np.float64) - b.astype(np.float64)) ** 2))
@@ -101,20 +119,21 @@ def main() -> None:
     scenes = {k: bench_scene(*wh) for k, wh in sizes.items()}
 
     # fast path first, so peak RSS is the fast path's own (torch/bpy are not imported yet)
+    # the reference timing of the same run, alternated with the render: one Gaussian blur (sigma 16)
+    # of the RGB frame
     for key, (img, rad, disp) in scenes.items():
         plan = plan_for_radius_map(disp, min_layers=MIN_LAYERS)
         fr = FastRenderer(min_layers=MIN_LAYERS)
-        res[f"render.fast.{key}.s_per_frame"] = seconds_per_frame(lambda: fr.render_linear(rad, disp, 0.0, 1.0), repeats)
+        x = np.ascontiguousarray(rad, np.float32)
+        res[f"render.fast.{key}.s_per_frame"], res[f"reference.gauss16.{key}.s"] = paired_seconds(
+            lambda: fr.render_linear(rad, disp, 0.0, 1.0), lambda: cv2.GaussianBlur(x, (0, 0), 16), repeats)
+        res[f"render.fast.{key}.gauss_ratio"] = res[f"render.fast.{key}.s_per_frame"] / res[f"reference.gauss16.{key}.s"]
         res[f"render.fast.{key}.layers"] = len(plan)
         res[f"render.fast.{key}.max_radius_px"] = float(np.abs(disp).max())
         print(f"fast {key}: {res[f'render.fast.{key}.s_per_frame']:.3f} s/frame, {len(plan)} layers", file=sys.stderr)
     res["render.fast.1080p.peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    # the reference timing of the same run: one Gaussian blur (sigma 16) of the RGB frame, and the
-    # exact path (no half-resolution layers) with its distance to the default
+    # the exact path (no half-resolution layers) with its distance to the default
     for key, (img, rad, disp) in scenes.items():
-        x = np.ascontiguousarray(rad, np.float32)
-        res[f"reference.gauss16.{key}.s"] = seconds_per_frame(lambda: cv2.GaussianBlur(x, (0, 0), 16), repeats)
-        res[f"render.fast.{key}.gauss_ratio"] = res[f"render.fast.{key}.s_per_frame"] / res[f"reference.gauss16.{key}.s"]
         ex = FastRenderer(min_layers=MIN_LAYERS, half_res_radius=None)
         res[f"render.fast_exact.{key}.s_per_frame"] = seconds_per_frame(lambda: ex.render_linear(rad, disp, 0.0, 1.0),
                                                                        repeats)
@@ -134,10 +153,10 @@ def main() -> None:
         f = float(np.median(d_real))
         a = MAX_RADIUS_1080P / max(float(np.abs(d_real - f).max()), 1e-6)
         fr = FastRenderer(min_layers=MIN_LAYERS)
-        res["render.fast.1080p_real_depth.s_per_frame"] = seconds_per_frame(
-            lambda: fr.render_linear(rad, d_real, f, a), repeats)
-        res["render.fast.1080p_real_depth.gauss_ratio"] = (res["render.fast.1080p_real_depth.s_per_frame"]
-                                                           / res["reference.gauss16.1080p.s"])
+        x = np.ascontiguousarray(rad, np.float32)
+        res["render.fast.1080p_real_depth.s_per_frame"], gauss = paired_seconds(
+            lambda: fr.render_linear(rad, d_real, f, a), lambda: cv2.GaussianBlur(x, (0, 0), 16), repeats)
+        res["render.fast.1080p_real_depth.gauss_ratio"] = res["render.fast.1080p_real_depth.s_per_frame"] / gauss
         res["render.fast.1080p_real_depth.layers"] = len(
             plan_for_radius_map((d_real - f) * a, min_layers=MIN_LAYERS))
         # the default against the exact path (no half-resolution layers) on the same depth, full frame
