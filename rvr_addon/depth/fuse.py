@@ -109,6 +109,9 @@ class FusedDepth:
     to_prev: np.ndarray | None = None
     """(h, w, 2) float32 at the analysis size: where each pixel lies in the previous frame (absolute
     px), when the carry computed that flow (:mod:`.refine` reuses it); else None."""
+    flow_gray: np.ndarray | None = None
+    """The frame's luma at the carry's flow size (uint8), when the carry computed it (:mod:`.refine`
+    reuses it); else None."""
 
 
 def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
@@ -332,7 +335,8 @@ class DepthFuser:
                 a, b = self._fit
                 d = (self.K * (self.q_ref - (a * d + b))).astype(np.float32)
             return FusedDepth(d, np.zeros((h, w), np.float32), ["network"],
-                              {"fit": None if self._fit is None else list(self._fit)}, to_prev=self._to_prev)
+                              {"fit": None if self._fit is None else list(self._fit)}, to_prev=self._to_prev,
+                              flow_gray=gray)
         # the network, mapped to q by the geometric cues
         geo_q = np.full(d_net.shape, np.nan, np.float32)
         geo_w = np.zeros(d_net.shape, np.float32)
@@ -391,4 +395,4 @@ class DepthFuser:
                 self.used[n] += 1
         return FusedDepth(d, conf.astype(np.float32), names,
                           {"fit": [float(fit[0]), float(fit[1])], "parallax_scale": self.parallax_scale,
-                           "scale_source": self.scale_source}, to_prev=self._to_prev)
+                           "scale_source": self.scale_source}, to_prev=self._to_prev, flow_gray=gray)

@@ -88,7 +88,7 @@ class ClipRefiner:
         self.lag = max(int(settings.refine_lag), 0)
         self._held: deque[_Held] = deque()
         self._last_out: _Held | None = None  # the previous output frame, with its refined d and c
-        self._cuts = CutDetector()
+        self._cuts = CutDetector() if self.lag else None
         self._dis = None
         self.refined = 0
         """Frames whose D the refinement changed."""
@@ -112,7 +112,10 @@ class ClipRefiner:
         frame, d_full, _e, fused = item
         h, w = frame.shape[:2]
         size = analysis_size(w, h, s.analysis_long_side)
-        gray = to_flow_gray(frame, flow_size(w, h, s.carry_flow_side))
+        fw, fh = flow_size(w, h, s.carry_flow_side)
+        gray = fused.flow_gray  # the fuser's carry computed it (same frame, same size)
+        if gray is None or gray.shape != (fh, fw):
+            gray = to_flow_gray(frame, (fw, fh))
         # only geometry from the camera's motion is shared between frames: the people cue is the
         # frame's own (metric, from face size), and a frame without parallax takes its neighbours'
         geometric = "parallax" in fused.cues or "carried" in fused.cues

@@ -95,6 +95,31 @@ def test_lag_zero_and_agreeing_frames_change_nothing():
         np.testing.assert_allclose(o[1], d, atol=1e-4)  # the same D everywhere: the same D out
 
 
+def test_the_fusers_flow_luma_is_reused_and_a_wrong_sized_one_is_not(monkeypatch):
+    """The refiner takes the frame's luma at the flow size from FusedDepth.flow_gray (the fuser's
+    carry computed it) instead of converting the frame again; one of another size is recomputed;
+    with lag 0 there is no cut detector (nothing is held)."""
+    import rvr_addon.temporal.flow as flow
+
+    frame = textured(288, 480)
+    d = np.zeros((288, 480), np.float32)
+    size = flow.flow_size(480, 288, FusionSettings().carry_flow_side)  # (320, 192); the cut detector's is smaller
+    calls = []
+    real = flow.to_flow_gray
+    monkeypatch.setattr(flow, "to_flow_gray", lambda f, sz: (calls.append(sz) if tuple(sz) == size else None)
+                        or real(f, sz))
+    given = real(frame, size)
+    refiner = ClipRefiner(FusionSettings(refine_lag=2))
+    ok = item(frame, d, 1.0)
+    ok[3].flow_gray = given
+    held = refiner._hold(ok)
+    assert held.gray is given and calls == []
+    bad = item(frame, d, 1.0)
+    bad[3].flow_gray = given[:-1]
+    assert refiner._hold(bad).gray.shape == given.shape and calls == [size]
+    assert ClipRefiner(FusionSettings(refine_lag=0))._cuts is None
+
+
 @pytest.mark.parametrize("h,w", [(1, 1), (2, 3), (1, 700)])
 def test_tiny_and_thin_frames(h, w):
     rng = np.random.default_rng(0)
