@@ -83,10 +83,22 @@ def _features(net, rgb: np.ndarray, max_pixels: int
     return got[0].clone(), luma(full).clone(), (sh / hp, sw / wp), (sw, sh)
 
 
+def _variant(net, name: str, scene: str, img: np.ndarray, target: np.ndarray, q: np.ndarray,
+             max_pixels: int) -> PictureFeatures:
+    """One prepared view: the trunk's features of ``img`` at ``max_pixels``, the full-size
+    ``target`` (D_rel-like, larger = farther) and its copy at the trunk's size, ``q`` for the figure."""
+    from .data import resize_disparity
+
+    feats, guide, extent, size = _features(net, img, max_pixels)
+    small_guide = F.interpolate(guide, size=(size[1], size[0]), mode="area")
+    small_tgt = torch.from_numpy(np.ascontiguousarray(resize_disparity(target, size)))[None, None]
+    return PictureFeatures(name, scene, feats, guide, extent, torch.from_numpy(target)[None, None], q,
+                           small_guide, small_tgt)
+
+
 def prepare(net, pictures, max_pixels: int, scales: tuple[float, ...] = (1.0,), flips: bool = True,
             progress: bool = False) -> dict[str, list[PictureFeatures]]:
     """{picture name: [its variants]}; the first variant is the unflipped one at the inference size."""
-    from .data import resize_disparity
     from .real_data import disparity_scale, read_image, read_inverse_depth
 
     out: dict[str, list[PictureFeatures]] = {}
@@ -98,13 +110,8 @@ def prepare(net, pictures, max_pixels: int, scales: tuple[float, ...] = (1.0,), 
             for flip in ((False, True) if flips else (False,)):
                 img = np.ascontiguousarray(rgb[:, ::-1]) if flip else rgb
                 qq = np.ascontiguousarray(q[:, ::-1]) if flip else q
-                feats, guide, extent, size = _features(net, img, max(1, int(max_pixels * s * s)))
                 t = (-scale * qq * DISPARITY_PERCENT / qq.shape[1]).astype(np.float32)
-                tgt = torch.from_numpy(t)[None, None]
-                small_guide = F.interpolate(guide, size=(size[1], size[0]), mode="area")
-                small_tgt = torch.from_numpy(np.ascontiguousarray(resize_disparity(t, size)))[None, None]
-                variants.append(PictureFeatures(pic.name, pic.scene, feats, guide, extent, tgt, qq,
-                                                small_guide, small_tgt))
+                variants.append(_variant(net, pic.name, pic.scene, img, t, qq, max(1, int(max_pixels * s * s))))
         out[pic.name] = variants
         if progress:
             print(f"\rfeatures {i + 1}/{len(pictures)}", end="", file=sys.stderr)
@@ -120,7 +127,7 @@ def prepare_procedural(net, folders: list[Path], max_pixels: int, flips: bool = 
     orientation of the real pictures' targets). limit: at most this many frames in all (0: every one)."""
     import cv2
 
-    from .data import SkipReport, procedural_sources, read_gt_disparity, resize_disparity
+    from .data import SkipReport, procedural_sources, read_gt_disparity
 
     report = SkipReport()
     sources = [src for folder in folders for src in procedural_sources(Path(folder), report)]
@@ -134,11 +141,7 @@ def prepare_procedural(net, folders: list[Path], max_pixels: int, flips: bool = 
         for flip in ((False, True) if flips else (False,)):
             img = np.ascontiguousarray(rgb[:, ::-1]) if flip else rgb
             t = np.ascontiguousarray(d[:, ::-1] if flip else d, dtype=np.float32)
-            feats, guide, extent, size = _features(net, img, max_pixels)
-            small_guide = F.interpolate(guide, size=(size[1], size[0]), mode="area")
-            small_tgt = torch.from_numpy(np.ascontiguousarray(resize_disparity(t, size)))[None, None]
-            variants.append(PictureFeatures(src.name, "procedural", feats, guide, extent,
-                                            torch.from_numpy(t)[None, None], -t, small_guide, small_tgt))
+            variants.append(_variant(net, src.name, "procedural", img, t, -t, max_pixels))
         out[src.name] = variants
         if progress:
             print(f"\rprocedural features {i + 1}/{len(sources)}", end="", file=sys.stderr)
