@@ -15,7 +15,7 @@ writing the same cache is refused, naming it).
 
 Where D comes from: the strip's Depth setting (``strip.rvr.depth_method``: Auto fuses parallax,
 people and the network, see ``rvr_addon.depth.system``; Parallax, People, Network) with its
-Horizontal FOV, replaced by the strip's Disparity maps when they are set ("depth from
+Field of view (across the long side), replaced by the strip's Disparity maps when they are set ("depth from
 elsewhere"; E still from the network, or 0 without weights). No weights and no maps: an error
 naming the missing weights file and the two fixes. Without MediaPipe, Auto leaves the people cue
 out and says so (the report and the panel's depth line); People then is an error naming the fix.

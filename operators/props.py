@@ -155,8 +155,8 @@ class RVR_PG_strip(bpy.types.PropertyGroup):
     depth_method: EnumProperty(name="Depth", items=DEPTH_METHODS, default="AUTO",
                                description="Where Analyze takes the disparity from (the strip's Disparity maps, when "
                                            "set, replace it)")
-    hfov_deg: FloatProperty(name="Horizontal FOV", default=0.0, min=0.0, max=179.0, soft_max=120.0, precision=1,
-                            description="The camera's horizontal field of view in degrees, for depth from parallax "
+    hfov_deg: FloatProperty(name="Field of view", default=0.0, min=0.0, max=179.0, soft_max=120.0, precision=1,
+                            description="The camera's field of view in degrees across the frame's long side, for depth from parallax "
                                         "and face size (0 = unknown: a phone's main camera, 66)")
     hdr_path: StringProperty(
         name="HDR",

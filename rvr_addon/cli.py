@@ -67,8 +67,9 @@ def add_depth_method_args(p, note: str = "") -> None:
                         "where there are people, the network elsewhere, fused), parallax, people, network (the "
                         "network alone) or external (--depth MAPS)" + note)
     p.add_argument("--hfov", type=float, metavar="DEG",
-                   help="the camera's horizontal field of view in degrees for the geometric cues (default: 66, a "
-                        "phone's main camera, refined from the clip where it moves)")
+                   help="the camera's field of view in degrees across the frame's long side (the horizontal "
+                        "one of a landscape clip, the vertical one of a portrait clip), for the geometric cues "
+                        "(default: 66, a phone's main camera, refined from the clip where it moves)")
 
 
 def add_run_control_args(p: argparse.ArgumentParser, checkpoint_every: int) -> None:

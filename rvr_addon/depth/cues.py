@@ -24,8 +24,9 @@ REFERENCE_FOCAL_M = 0.050
 REFERENCE_F_NUMBER = 2.0
 REFERENCE_SENSOR_WIDTH_M = 0.036
 DEFAULT_HFOV_DEG = 66.0
-"""Horizontal field of view assumed for a clip without metadata (a phone's main camera, ~26 mm
-equivalent); only the focal length in px used by geometry (face size, triangulation) uses it."""
+"""Field of view (deg) assumed across the frame's long side for a clip without metadata (a phone's
+main camera, ~26 mm equivalent: the horizontal field of a landscape clip, the vertical one of a
+portrait clip); only the focal length in px used by geometry (face size, triangulation) uses it."""
 
 
 @dataclass
@@ -58,9 +59,11 @@ class CueMap:
         return float(np.mean(self.confidence > 0))
 
 
-def focal_px(width: int, hfov_deg: float = DEFAULT_HFOV_DEG) -> float:
-    """Focal length in px of a pinhole camera ``width`` px wide with horizontal FOV ``hfov_deg``."""
-    return 0.5 * float(width) / float(np.tan(np.radians(hfov_deg) / 2.0))
+def focal_px(long_side: int, hfov_deg: float = DEFAULT_HFOV_DEG) -> float:
+    """Focal length in px of a pinhole camera whose frame's long side is ``long_side`` px, with a
+    field of view of ``hfov_deg`` across that side (:data:`DEFAULT_HFOV_DEG`: a portrait clip's
+    field is given across its height, as a phone's camera is specified)."""
+    return 0.5 * float(long_side) / float(np.tan(np.radians(hfov_deg) / 2.0))
 
 
 def lens_constant(width: int) -> float:

@@ -77,7 +77,7 @@ its rotation) gets an empty cue (all NaN, confidence 0) whose reason says why.
 
 Intrinsics: the product does not know K; unless the caller passes one (px of the full frame),
 a pinhole with the principal point at the centre whose focal length starts at
-:func:`rvr_addon.depth.cues.focal_px`'s guess (66 deg horizontal FOV) and is refined once, on
+:func:`rvr_addon.depth.cues.focal_px`'s guess (66 deg across the frame's long side) and is refined once, on
 the tracks of the first CAL_FRAMES frames (:func:`refine_focal`: the focal whose two-view
 reconstructions a third view sees best, shrunk toward the guess by its bootstrap uncertainty);
 info ``focal_px`` (full frame) and ``focal_refined``.
@@ -135,7 +135,7 @@ CAL_PARALLAX_PX = 6.0
 homography residual (px) with a's, b the frame half-way."""
 FOCAL_STEP, FOCAL_STEPS = 1.08, (-4, 5)
 """Focal lengths tried by refine_focal: the guess times FOCAL_STEP ** k, k in the range
-(0.74-1.47 x the 66 deg guess: about 84 to 48 deg horizontal FOV)."""
+(0.74-1.47 x the 66 deg guess: about 84 to 48 deg across the long side)."""
 FOCAL_MIN_TRIPLES = 4
 """refine_focal keeps the guess unless this many frame triples answer."""
 FOCAL_PRIOR_SIGMA = 0.15
@@ -247,8 +247,8 @@ def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
 
 def default_K(width: int, height: int) -> np.ndarray:
     """(3, 3) pinhole intrinsics in px for a ``width`` x ``height`` frame: principal point at
-    the centre, focal length :func:`cues.focal_px` (66 deg horizontal FOV)."""
-    f = focal_px(width)
+    the centre, focal length :func:`cues.focal_px` (66 deg across the long side)."""
+    f = focal_px(max(width, height))
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 

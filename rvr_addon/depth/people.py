@@ -11,7 +11,7 @@ downloaded at run time):
 Per frame, :class:`PeopleDetector` splits the single selfie matte between the detected faces
 (a geodesic split: each face's region grows inside the matte, nearer faces faster, so pixels go
 to the face they are connected to; matte parts reachable from no face are dropped unless they lie
-close to a person), gives each person a distance ``S = focal_px(W) * FACE_WIDTH_M / face_width_px``
+close to a person), gives each person a distance ``S = focal_px(max(W, H)) * FACE_WIDTH_M / face_width_px``
 (pinhole camera of :data:`~rvr_addon.depth.cues.DEFAULT_HFOV_DEG` unless told otherwise) and
 returns a :class:`~rvr_addon.depth.cues.CueMap` named ``people``: metric inverse depth (1/m) with a
 gentle relief (the face a few cm nearer than the body's silhouette), NaN outside people,
@@ -73,6 +73,10 @@ FACE_RELIEF_M = 0.05
 """The body's silhouette lies this much (m) behind the face at most (a smooth bump on the face)."""
 EDGE_RELIEF_M = 0.03
 """Extra depth (m) at a person's outline, fading over half a face width inwards (rounded body)."""
+ROTATED_FACES_MATTE = 0.03
+"""A frame where the face detector finds no face but the person matte covers at least this share
+of the frame (above 0.5) is searched again turned a quarter turn each way: MediaPipe's face
+detector misses faces rolled beyond ~60-90 degrees (a person lying down, a phone held sideways)."""
 MIN_MATTE = 0.02
 """Matte values below this are taken as 0 (outside people)."""
 MAX_DISTANCE_M = 50.0
@@ -281,7 +285,7 @@ def grow_labels(core: np.ndarray, seeds: np.ndarray, rates: list[int]) -> np.nda
 class PeopleDetector:
     """Finds people in RGB frames and answers with their mattes, distances and depth (CueMap).
 
-    ``hfov_deg``: the camera's horizontal field of view (deg), for the focal length in px.
+    ``hfov_deg``: the camera's field of view (deg) across the frame's long side, for the focal length in px.
     ``analysis_long_side``: long side (px) the models work at. ``min_face_score``: the face
     detector's threshold. ``max_faces``: faces kept per frame (largest first). Use as a context
     manager or call :meth:`close`; the models load on the first frame.
@@ -341,6 +345,8 @@ class PeopleDetector:
         matte = np.clip(np.nan_to_num(np.asarray(matte, np.float32)), 0.0, 1.0) if matte is not None \
             else np.zeros((ah, aw), np.float32)
         faces = self._faces(models, small, frame)
+        if not faces and float(np.mean(matte > 0.5)) >= ROTATED_FACES_MATTE:
+            faces = self._faces(models, small, frame, rotated=True)
         k = aw / w  # full-size px -> matte px; a box no person matte covers (a sign) is no face: face_check
         boxes = [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
                  for f in faces]
@@ -355,29 +361,35 @@ class PeopleDetector:
                 "hfov_deg": self.hfov_deg, "face_width_m": FACE_WIDTH_M}
         return self._answer(layers, h, w, info)
 
-    def _faces(self, models: dict[str, Any], small: np.ndarray, frame: np.ndarray) -> list[dict]:
-        """Detected faces (full-size px): box, score, width, mouth opening; largest first."""
+    def _faces(self, models: dict[str, Any], small: np.ndarray, frame: np.ndarray,
+               rotated: bool = False) -> list[dict]:
+        """Detected faces (full-size px): box, score, width, mouth opening; largest first.
+        rotated: search the frame turned a quarter turn each way instead (:data:`ROTATED_FACES_MATTE`);
+        the boxes come back in the frame's own px, the width is the face's own (across the face)."""
         h, w = frame.shape[:2]
-        result = models["faces"].process(small)
         faces = []
-        for det in result.detections or []:
-            box = det.location_data.relative_bounding_box
-            x0, y0 = max(0.0, box.xmin * w), max(0.0, box.ymin * h)
-            x1, y1 = min(float(w), (box.xmin + box.width) * w), min(float(h), (box.ymin + box.height) * h)
-            if x1 - x0 < 2 or y1 - y0 < 2:
-                continue
-            faces.append({"box": (x0, y0, x1, y1), "score": float(det.score[0]) if det.score else 0.0,
-                          "box_w": float(box.width * w)})
+        for turn in ((1, 3) if rotated else (0,)):
+            result = models["faces"].process(np.ascontiguousarray(np.rot90(small, turn)) if turn else small)
+            for det in result.detections or []:
+                box = det.location_data.relative_bounding_box
+                rx0, ry0, rx1, ry1 = unturn_box(box.xmin, box.ymin, box.xmin + box.width, box.ymin + box.height, turn)
+                x0, y0 = max(0.0, rx0 * w), max(0.0, ry0 * h)
+                x1, y1 = min(float(w), rx1 * w), min(float(h), ry1 * h)
+                if x1 - x0 < 2 or y1 - y0 < 2:
+                    continue
+                across = box.width * (h if turn % 2 else w)  # the face's own width, in full-size px
+                faces.append({"box": (x0, y0, x1, y1), "score": float(det.score[0]) if det.score else 0.0,
+                              "box_w": float(across), "turned": turn})
         faces.sort(key=lambda f: -f["box_w"])
         faces = faces[:self.max_faces]
         for face in faces:
             face["width"], face["mouth"], face["mesh"] = face["box_w"] * BOX_TO_FACE_WIDTH, None, False
-            if "mesh" in models:
+            if "mesh" in models and not face["turned"]:  # the mesh runs on upright crops only
                 points = face_landmarks(models["mesh"], frame, face["box"])
                 if points is not None:
                     face["mesh"] = True
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
-            face["distance"] = float(np.clip(focal_px(w, self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
+            face["distance"] = float(np.clip(focal_px(max(w, h), self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))
         return faces
 
@@ -444,6 +456,18 @@ class PeopleDetector:
             np.copyto(q, np.float32(np.nan), where=conf <= 0)
         persons = [lay.person for lay in sorted(layers, key=lambda lay: lay.person.distance_m)]
         return PeopleFrame(persons=persons, cue=CueMap("people", q, conf, metric=True, shift_free=True, info=info))
+
+
+def unturn_box(x0: float, y0: float, x1: float, y1: float, turn: int) -> tuple[float, float, float, float]:
+    """A box (x0, y0, x1, y1, relative 0..1) found in ``np.rot90(frame, turn)`` as a box of the
+    frame itself (relative): turn 1 = the frame turned a quarter turn counter-clockwise, 3 = clockwise."""
+    if turn % 4 == 1:  # rot90 k=1: the turned frame's (x', y') is the frame's (1 - y', x')
+        return 1.0 - y1, x0, 1.0 - y0, x1
+    if turn % 4 == 3:  # k=3: the turned frame's (x', y') is the frame's (y', 1 - x')
+        return y0, 1.0 - x1, y1, 1.0 - x0
+    if turn % 4 == 2:
+        return 1.0 - x1, 1.0 - y1, 1.0 - x0, 1.0 - y0
+    return x0, y0, x1, y1
 
 
 def _add_face_ellipse(mask: np.ndarray, box: list[float], value: float) -> None:

@@ -55,6 +55,7 @@ class DepthPlan:
         out = {"method": self.method, "cues": list(self.cues)}
         if len(self.cues) > 1:
             out["hfov_deg"] = self.hfov_deg if self.hfov_given else "guessed"
+            out["fov_across"] = "long side"  # since 2026-12-07 (was the width: portrait clips' focal too short)
             out["fusion"] = self.fusion.describe()
         return out
 
@@ -88,7 +89,7 @@ def plan_depth(method: str, frames: Callable[[], Iterable[np.ndarray]] | None, h
         raise InputError(f"--depth-method {method!r}: choose one of {', '.join(METHODS)}")
     hfov = DEFAULT_HFOV_DEG if hfov_deg is None else float(hfov_deg)
     if not 1.0 < hfov < 179.0:
-        raise InputError(f"--hfov {hfov}: give the camera's horizontal field of view in degrees (1..179), "
+        raise InputError(f"--hfov {hfov}: give the camera's field of view in degrees across the frame's long side (1..179), "
                          f"e.g. {DEFAULT_HFOV_DEG:g} for a phone's main camera")
     fusion = fusion or FusionSettings()
     given = hfov_deg is not None
@@ -214,7 +215,7 @@ class DepthStream:
             K = None  # parallax refines the focal length from the clip's own tracks
             if plan.hfov_given:
                 w, h = size
-                f = focal_px(w, plan.hfov_deg)
+                f = focal_px(max(w, h), plan.hfov_deg)
                 K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
             self.parallax = ParallaxEstimator(K=K)
 

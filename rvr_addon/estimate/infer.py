@@ -438,7 +438,7 @@ class EstimateSettings:
     depth_method: str = "auto"
     """``auto`` | ``parallax`` | ``people`` | ``network`` | ``external`` (:mod:`rvr_addon.depth.system`)."""
     hfov_deg: float | None = None
-    """The camera's horizontal field of view (deg) for the geometric cues; None: a phone's (66)."""
+    """The camera's field of view (deg) across the frame's long side for the geometric cues; None: a phone's (66)."""
     defer_commit: bool = False
     """When the output holds a cache of other settings, the new one is built beside it
     (:class:`~.cache.ClipCache`) and put in place once the range is done; True leaves that to

@@ -73,7 +73,7 @@ def add_parser(sub) -> None:
                    help="the clip's work folder (default OUT_DIR/rvr_cache/CLIP-HASH); kept for re-runs")
     p.add_argument("--depth-method", choices=METHODS[:-1], default="auto",
                    help="where depth comes from (default auto: parallax where the camera moves, people, the network)")
-    p.add_argument("--hfov", type=float, metavar="DEG", help="the camera's horizontal field of view (default 66)")
+    p.add_argument("--hfov", type=float, metavar="DEG", help="the camera's field of view across the frame's long side (default 66)")
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window of the autofocus in s (default 2)")
     p.add_argument("--causal", action="store_true",
                    help="no look-ahead (what a camera could do live): the autofocus and the temporal filter see no later frame")

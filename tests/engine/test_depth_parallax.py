@@ -499,3 +499,15 @@ def test_group_median_is_numpys_median_of_each_group():
     uniq, med = group_median(keys, values)
     np.testing.assert_array_equal(uniq, np.unique(keys))
     np.testing.assert_array_equal(med, [np.median(values[keys == k]) for k in uniq])  # bit for bit
+
+
+def test_the_guessed_focal_length_is_across_the_long_side():
+    """A phone's portrait clip (taller than wide) is the same camera as its landscape clip: the
+    66 degree guess spans the long side either way, so both get one focal length in px (it was
+    taken across the width, 1.8x too short for a 9:16 clip); the cache key says so."""
+    from rvr_addon.depth.system import DepthPlan
+
+    landscape, portrait = default_K(640, 360), default_K(360, 640)
+    assert landscape[0, 0] == portrait[0, 0] == pytest.approx(focal_px(640)) == pytest.approx(320 / np.tan(np.radians(33)))
+    assert portrait[0, 2] == pytest.approx(179.5) and portrait[1, 2] == pytest.approx(319.5)
+    assert DepthPlan("auto", ("parallax", "network")).key()["fov_across"] == "long side"

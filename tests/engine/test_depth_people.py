@@ -100,6 +100,41 @@ def test_lipnet_mouth_opens_while_speaking(detector):
 
 
 @needs_mediapipe
+@pytest.mark.parametrize("turn", [1, 3])
+def test_a_face_turned_a_quarter_turn_is_still_a_person(turn):
+    """A frame turned 90 degrees (a person lying down, a phone held sideways): MediaPipe's face
+    detector finds no face in it, so the cue searches the frame turned back; the person is found
+    with the face where it is in the turned frame and about the distance of the upright frame."""
+    frame = clip_frame(LIPNET, 30)
+    with PeopleDetector() as det:
+        upright = det(frame)
+    turned_frame = np.ascontiguousarray(np.rot90(frame, turn))
+    with PeopleDetector() as det:
+        assert det._faces(det._load(), turned_frame, turned_frame) == []  # the detector alone misses it
+        turned = det(turned_frame)
+    check_cue(turned, turned_frame.shape[:2])
+    assert len(upright.persons) == len(turned.persons) == 1
+    h, w = frame.shape[:2]
+    x0, y0, x1, y1 = upright.persons[0].face_box
+    expected = people_mod.unturn_box(x0 / w, y0 / h, x1 / w, y1 / h, 4 - turn)  # where it went when turned
+    th, tw = turned_frame.shape[:2]
+    got = turned.persons[0].face_box
+    assert np.allclose(got, np.array(expected) * [tw, th, tw, th], atol=0.12 * (x1 - x0))
+    assert turned.persons[0].distance_m == pytest.approx(upright.persons[0].distance_m, rel=0.2)
+
+
+def test_unturn_box_maps_a_box_back_from_each_quarter_turn():
+    a = np.zeros((40, 60))
+    a[5:15, 30:50] = 1  # x 30..50, y 5..15 of a 60 x 40 frame
+    for turn in range(4):
+        r = np.rot90(a, turn)
+        ys, xs = np.nonzero(r)
+        th, tw = r.shape
+        box = people_mod.unturn_box(xs.min() / tw, ys.min() / th, (xs.max() + 1) / tw, (ys.max() + 1) / th, turn)
+        assert np.allclose(np.array(box) * [60, 40, 60, 40], [30, 5, 50, 15])
+
+
+@needs_mediapipe
 def test_no_people_all_nan(detector):
     sky = np.zeros((360, 640, 3), np.uint8)
     sky[...] = np.linspace([90, 140, 230], [200, 220, 250], 360)[:, None, :].astype(np.uint8)
