@@ -23,6 +23,14 @@ import numpy as np
 
 Box = tuple[float, float, float, float]
 
+TURN_MIN_MATTE = 0.03
+"""A frame where the face detector finds no face but the person matte is above 0.5 on at least this
+share of it is searched again turned a quarter turn each way (:func:`worth_turning`): MediaPipe's
+face detectors miss faces rolled beyond ~60-90 degrees (a person lying down, a phone held sideways
+without rotation metadata)."""
+TURNS = (1, 3)
+"""The quarter turns (``np.rot90``'s k: 1 counter-clockwise, 3 clockwise) searched."""
+
 PERSON_MIN_COVER = 0.25
 """Least mean person matte (0..1) inside a face box for the box to count as a face without the face
 mesh's confirmation (measured: real faces >= 0.59, the demo's sign 0.01)."""
@@ -89,3 +97,21 @@ def matte_only(boxes: Sequence[Box], matte: np.ndarray | None, kept: Sequence[in
     """The boxes the person matte covers that :func:`confirmed_faces` did not keep (the next
     frame's ``pending``)."""
     return [b for i, b in enumerate(boxes) if i not in kept and person_cover(matte, b) >= min_cover]
+
+
+def worth_turning(matte: np.ndarray | None) -> bool:
+    """Whether a frame whose upright search found no face should be searched turned (:data:`TURNS`):
+    its person matte (0..1) is above 0.5 on at least :data:`TURN_MIN_MATTE` of it."""
+    return matte is not None and matte.size > 0 and float(np.mean(matte > 0.5)) >= TURN_MIN_MATTE
+
+
+def unturn_box(x0: float, y0: float, x1: float, y1: float, turn: int) -> tuple[float, float, float, float]:
+    """A box (x0, y0, x1, y1, relative 0..1) found in ``np.rot90(frame, turn)`` as a box of the
+    frame itself (relative): turn 1 = the frame turned a quarter turn counter-clockwise, 3 = clockwise."""
+    if turn % 4 == 1:  # rot90 k=1: the turned frame's (x', y') is the frame's (1 - y', x')
+        return 1.0 - y1, x0, 1.0 - y0, x1
+    if turn % 4 == 3:  # k=3: the turned frame's (x', y') is the frame's (y', 1 - x')
+        return y0, 1.0 - x1, y1, 1.0 - x0
+    if turn % 4 == 2:
+        return 1.0 - x1, 1.0 - y1, 1.0 - x0, 1.0 - y0
+    return x0, y0, x1, y1

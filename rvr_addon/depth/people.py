@@ -73,10 +73,6 @@ FACE_RELIEF_M = 0.05
 """The body's silhouette lies this much (m) behind the face at most (a smooth bump on the face)."""
 EDGE_RELIEF_M = 0.03
 """Extra depth (m) at a person's outline, fading over half a face width inwards (rounded body)."""
-ROTATED_FACES_MATTE = 0.03
-"""A frame where the face detector finds no face but the person matte covers at least this share
-of the frame (above 0.5) is searched again turned a quarter turn each way: MediaPipe's face
-detector misses faces rolled beyond ~60-90 degrees (a person lying down, a phone held sideways)."""
 MIN_MATTE = 0.02
 """Matte values below this are taken as 0 (outside people)."""
 MAX_DISTANCE_M = 50.0
@@ -345,7 +341,7 @@ class PeopleDetector:
         matte = np.clip(np.nan_to_num(np.asarray(matte, np.float32)), 0.0, 1.0) if matte is not None \
             else np.zeros((ah, aw), np.float32)
         faces = self._faces(models, small, frame)
-        if not faces and float(np.mean(matte > 0.5)) >= ROTATED_FACES_MATTE:
+        if not faces and face_check.worth_turning(matte):
             faces = self._faces(models, small, frame, rotated=True)
         k = aw / w  # full-size px -> matte px; a box no person matte covers (a sign) is no face: face_check
         boxes = [(f["box"][0] * k, f["box"][1] * k, (f["box"][2] - f["box"][0]) * k, (f["box"][3] - f["box"][1]) * k)
@@ -364,15 +360,16 @@ class PeopleDetector:
     def _faces(self, models: dict[str, Any], small: np.ndarray, frame: np.ndarray,
                rotated: bool = False) -> list[dict]:
         """Detected faces (full-size px): box, score, width, mouth opening; largest first.
-        rotated: search the frame turned a quarter turn each way instead (:data:`ROTATED_FACES_MATTE`);
+        rotated: search the frame turned a quarter turn each way instead (:func:`face_check.worth_turning`);
         the boxes come back in the frame's own px, the width is the face's own (across the face)."""
         h, w = frame.shape[:2]
         faces = []
-        for turn in ((1, 3) if rotated else (0,)):
+        for turn in (face_check.TURNS if rotated else (0,)):
             result = models["faces"].process(np.ascontiguousarray(np.rot90(small, turn)) if turn else small)
             for det in result.detections or []:
                 box = det.location_data.relative_bounding_box
-                rx0, ry0, rx1, ry1 = unturn_box(box.xmin, box.ymin, box.xmin + box.width, box.ymin + box.height, turn)
+                rx0, ry0, rx1, ry1 = face_check.unturn_box(box.xmin, box.ymin, box.xmin + box.width,
+                                                            box.ymin + box.height, turn)
                 x0, y0 = max(0.0, rx0 * w), max(0.0, ry0 * h)
                 x1, y1 = min(float(w), rx1 * w), min(float(h), ry1 * h)
                 if x1 - x0 < 2 or y1 - y0 < 2:
@@ -456,18 +453,6 @@ class PeopleDetector:
             np.copyto(q, np.float32(np.nan), where=conf <= 0)
         persons = [lay.person for lay in sorted(layers, key=lambda lay: lay.person.distance_m)]
         return PeopleFrame(persons=persons, cue=CueMap("people", q, conf, metric=True, shift_free=True, info=info))
-
-
-def unturn_box(x0: float, y0: float, x1: float, y1: float, turn: int) -> tuple[float, float, float, float]:
-    """A box (x0, y0, x1, y1, relative 0..1) found in ``np.rot90(frame, turn)`` as a box of the
-    frame itself (relative): turn 1 = the frame turned a quarter turn counter-clockwise, 3 = clockwise."""
-    if turn % 4 == 1:  # rot90 k=1: the turned frame's (x', y') is the frame's (1 - y', x')
-        return 1.0 - y1, x0, 1.0 - y0, x1
-    if turn % 4 == 3:  # k=3: the turned frame's (x', y') is the frame's (y', 1 - x')
-        return y0, 1.0 - x1, y1, 1.0 - x0
-    if turn % 4 == 2:
-        return 1.0 - x1, 1.0 - y1, 1.0 - x0, 1.0 - y0
-    return x0, y0, x1, y1
 
 
 def _add_face_ellipse(mask: np.ndarray, box: list[float], value: float) -> None:

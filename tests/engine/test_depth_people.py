@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from rvr_addon.depth import face_check
 from rvr_addon.depth import people as people_mod
 from rvr_addon.depth.cues import focal_px
 from rvr_addon.depth.people import FACE_WIDTH_M, PeopleDetector, PeopleFrame, PeopleModelError
@@ -116,7 +117,7 @@ def test_a_face_turned_a_quarter_turn_is_still_a_person(turn):
     assert len(upright.persons) == len(turned.persons) == 1
     h, w = frame.shape[:2]
     x0, y0, x1, y1 = upright.persons[0].face_box
-    expected = people_mod.unturn_box(x0 / w, y0 / h, x1 / w, y1 / h, 4 - turn)  # where it went when turned
+    expected = face_check.unturn_box(x0 / w, y0 / h, x1 / w, y1 / h, 4 - turn)  # where it went when turned
     th, tw = turned_frame.shape[:2]
     got = turned.persons[0].face_box
     assert np.allclose(got, np.array(expected) * [tw, th, tw, th], atol=0.12 * (x1 - x0))
@@ -130,7 +131,7 @@ def test_unturn_box_maps_a_box_back_from_each_quarter_turn():
         r = np.rot90(a, turn)
         ys, xs = np.nonzero(r)
         th, tw = r.shape
-        box = people_mod.unturn_box(xs.min() / tw, ys.min() / th, (xs.max() + 1) / tw, (ys.max() + 1) / th, turn)
+        box = face_check.unturn_box(xs.min() / tw, ys.min() / th, (xs.max() + 1) / tw, (ys.max() + 1) / th, turn)
         assert np.allclose(np.array(box) * [60, 40, 60, 40], [30, 5, 50, 15])
 
 

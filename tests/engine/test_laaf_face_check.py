@@ -144,3 +144,34 @@ def test_the_face_models_load_once_per_process():
 
     a, b = FaceBackend("mediapipe"), FaceDetector(backend="auto").backend
     assert a.mediapipe is not None and a.mediapipe is b.mediapipe
+
+
+@needs_mp
+@pytest.mark.parametrize("name,t,turn", [("lipnet_grid_lwbsza.mpg", 30, 1), ("lipnet_grid_lwbsza.mpg", 30, 3),
+                                         ("visualvoice_noisy_restaurant.mp4", 100, 1)])
+def test_a_face_on_its_side_is_found_turned_back(name: str, t: int, turn: int):
+    """A frame turned a quarter turn (a person lying down, a phone held sideways): LAAF's backend
+    finds no face in it upright, the person matte says someone is there, so the frame is searched
+    turned back; the face is found where it lies in the turned frame."""
+    from rvr_addon.depth.face_check import unturn_box, worth_turning
+    from rvr_addon.laaf.detectors.face import FaceBackend
+    from rvr_addon.laaf.detectors.mediapipe_face import MediaPipeFaces
+
+    if not (CLIPS / name).is_file():
+        pytest.skip("../shared/data/clips is absent")
+    small = _analysis(_frame(name, t))
+    upright = FaceBackend("mediapipe").detect_frame(cv2.cvtColor(small, cv2.COLOR_RGB2GRAY), small)
+    assert len(upright) == 1
+    turned = np.ascontiguousarray(np.rot90(small, turn))
+    faces = MediaPipeFaces(mesh=False)
+    models = faces.load()
+    assert faces._boxes(models["faces"].process(turned), turned.shape) == []  # the model alone misses it
+    assert worth_turning(faces._matte(turned, []))
+    boxes = FaceBackend("mediapipe").detect_frame(cv2.cvtColor(turned, cv2.COLOR_RGB2GRAY), turned)
+    assert len(boxes) == 1
+    h, w = small.shape[:2]
+    x, y, bw, bh = upright[0]
+    th, tw = turned.shape[:2]
+    ex0, ey0, ex1, ey1 = np.array(unturn_box(x / w, y / h, (x + bw) / w, (y + bh) / h, 4 - turn)) * [tw, th, tw, th]
+    gx, gy, gw, gh = boxes[0]
+    assert abs((gx + gw / 2) - (ex0 + ex1) / 2) < 0.2 * bw and abs((gy + gh / 2) - (ey0 + ey1) / 2) < 0.2 * bw

@@ -110,7 +110,9 @@ class MediaPipeFaces:
     def detect(self, rgb: np.ndarray) -> list[tuple[Box, float]]:
         """Face boxes (x, y, w, h) px of an (H, W, 3) uint8 RGB frame with their scores: the
         full-range model's, or where it finds none the short-range model's (``close_range``);
-        with ``verify`` only the boxes ``face_check`` confirms."""
+        with ``verify`` only the boxes ``face_check`` confirms. Where neither finds a face but the
+        person matte says someone is there (``face_check.worth_turning``), the full-range model
+        searches the frame turned a quarter turn each way (a face on its side)."""
         models = self.load()
         rgb = np.ascontiguousarray(rgb)
         matte: list[np.ndarray | None] = []  # the frame's person matte, segmented once when needed
@@ -118,7 +120,30 @@ class MediaPipeFaces:
         if not out and "faces_close" in models:
             out = self._confirmed([(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
                                    if score >= self.close_min_score], rgb, matte)
+        if not out and self.verify and face_check.worth_turning(self._matte(rgb, matte)):
+            turned = []
+            for turn in face_check.TURNS:
+                found = models["faces"].process(np.ascontiguousarray(np.rot90(rgb, turn))).detections or []
+                turned += [(self._unturned(det.location_data.relative_bounding_box, turn, rgb.shape),
+                            float(det.score[0]) if det.score else 0.0) for det in found]
+            out = self._confirmed([(b, s) for b, s in turned if b[2] >= 2 and b[3] >= 2], rgb, matte)
         return out
+
+    def _matte(self, rgb: np.ndarray, matte: list[np.ndarray | None]) -> np.ndarray | None:
+        """The frame's person matte (0..1), segmented once per frame (``matte`` caches it)."""
+        if not matte:
+            seg = self.load()["segment"].process(rgb).segmentation_mask
+            matte.append(None if seg is None else np.clip(np.nan_to_num(np.asarray(seg, np.float32)), 0.0, 1.0))
+        return matte[0]
+
+    @staticmethod
+    def _unturned(b: Any, turn: int, shape: tuple[int, ...]) -> Box:
+        """A relative box found in the frame turned by ``turn`` quarter turns, as (x, y, w, h) px of
+        the frame of ``shape``."""
+        h, w = shape[:2]
+        x0, y0, x1, y1 = face_check.unturn_box(b.xmin, b.ymin, b.xmin + b.width, b.ymin + b.height, turn)
+        x0, y0, x1, y1 = max(0.0, x0 * w), max(0.0, y0 * h), min(float(w), x1 * w), min(float(h), y1 * h)
+        return x0, y0, x1 - x0, y1 - y0
 
     def _confirmed(self, found: list[tuple[Box, float]], rgb: np.ndarray,
                    matte: list[np.ndarray | None]) -> list[tuple[Box, float]]:
@@ -126,12 +151,8 @@ class MediaPipeFaces:
         caches the frame's person segmentation (empty: not computed yet)."""
         if not self.verify or not found:
             return found
-        models = self.load()
-        if not matte:
-            seg = models["segment"].process(rgb).segmentation_mask
-            matte.append(None if seg is None else np.clip(np.nan_to_num(np.asarray(seg, np.float32)), 0.0, 1.0))
         boxes = [b for b, _ in found]
-        kept = face_check.confirmed_faces(boxes, matte[0], lambda i: self._mesh_finds(rgb, boxes[i]))
+        kept = face_check.confirmed_faces(boxes, self._matte(rgb, matte), lambda i: self._mesh_finds(rgb, boxes[i]))
         self.rejected += len(found) - len(kept)
         return [found[i] for i in kept]
 
