@@ -14,6 +14,10 @@ clips 0.59-1.0), not a sign (0.01). A box is kept when the person matte covers a
 :data:`PERSON_MIN_COVER` of it, or, failing that, when the face mesh finds a face whose nose tip lies
 in the box (``people.face_landmarks``; a face the segmentation misses, e.g. a hand over it): the
 mesh is asked only for the boxes the matte rejects.
+
+Both users also search a frame turned a quarter turn each way (:data:`TURNS`, :func:`unturn_box`)
+when no face is found upright but the person matte says someone is there (:func:`worth_turning`):
+the detectors miss faces rolled by about 90 degrees (a person lying down, a phone held sideways).
 """
 from __future__ import annotations
 
