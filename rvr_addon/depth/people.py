@@ -361,31 +361,39 @@ class PeopleDetector:
                rotated: bool = False) -> list[dict]:
         """Detected faces (full-size px): box, score, width, mouth opening; largest first.
         rotated: search the frame turned a quarter turn each way instead (:func:`face_check.worth_turning`);
-        the boxes come back in the frame's own px, the width is the face's own (across the face)."""
+        the boxes come back in the frame's own px. A face found turned must also be one the face
+        mesh reads in the turned frame (textures such as a bicycle wheel pass the detector turned;
+        without the mesh loaded, the person matte alone confirms it, as upright)."""
         h, w = frame.shape[:2]
         faces = []
         for turn in (face_check.TURNS if rotated else (0,)):
             result = models["faces"].process(np.ascontiguousarray(np.rot90(small, turn)) if turn else small)
             for det in result.detections or []:
                 box = det.location_data.relative_bounding_box
-                rx0, ry0, rx1, ry1 = face_check.unturn_box(box.xmin, box.ymin, box.xmin + box.width,
-                                                            box.ymin + box.height, turn)
+                rel = (box.xmin, box.ymin, box.xmin + box.width, box.ymin + box.height)
+                rx0, ry0, rx1, ry1 = face_check.unturn_box(*rel, turn)
                 x0, y0 = max(0.0, rx0 * w), max(0.0, ry0 * h)
                 x1, y1 = min(float(w), rx1 * w), min(float(h), ry1 * h)
                 if x1 - x0 < 2 or y1 - y0 < 2:
                     continue
-                across = box.width * (h if turn % 2 else w)  # the face's own width, in full-size px
+                tw, th = (h, w) if turn % 2 else (w, h)  # the turned frame's size
                 faces.append({"box": (x0, y0, x1, y1), "score": float(det.score[0]) if det.score else 0.0,
-                              "box_w": float(across), "turned": turn})
+                              "box_w": float(box.width * tw), "turned": turn,
+                              "turned_box": (rel[0] * tw, rel[1] * th, rel[2] * tw, rel[3] * th)})
         faces.sort(key=lambda f: -f["box_w"])
         faces = faces[:self.max_faces]
         for face in faces:
             face["width"], face["mouth"], face["mesh"] = face["box_w"] * BOX_TO_FACE_WIDTH, None, False
-            if "mesh" in models and not face["turned"]:  # the mesh runs on upright crops only
-                points = face_landmarks(models["mesh"], frame, face["box"])
+            if "mesh" in models:
+                turned = face["turned"]
+                view = np.ascontiguousarray(np.rot90(frame, turned)) if turned else frame
+                points = face_landmarks(models["mesh"], view, face["turned_box"] if turned else face["box"])
                 if points is not None:
                     face["mesh"] = True
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
+        if rotated and "mesh" in models:
+            faces = [f for f in faces if f["mesh"]]
+        for face in faces:
             face["distance"] = float(np.clip(focal_px(max(w, h), self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))
         return faces

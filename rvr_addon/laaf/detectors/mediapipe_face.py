@@ -112,7 +112,9 @@ class MediaPipeFaces:
         full-range model's, or where it finds none the short-range model's (``close_range``);
         with ``verify`` only the boxes ``face_check`` confirms. Where neither finds a face but the
         person matte says someone is there (``face_check.worth_turning``), the full-range model
-        searches the frame turned a quarter turn each way (a face on its side)."""
+        searches the frame turned a quarter turn each way (a face on its side); such a face must
+        also be one the face mesh reads in the turned frame (a bicycle wheel passes the detector
+        turned)."""
         models = self.load()
         rgb = np.ascontiguousarray(rgb)
         matte: list[np.ndarray | None] = []  # the frame's person matte, segmented once when needed
@@ -121,12 +123,11 @@ class MediaPipeFaces:
             out = self._confirmed([(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
                                    if score >= self.close_min_score], rgb, matte)
         if not out and self.verify and face_check.worth_turning(self._matte(rgb, matte)):
-            turned = []
             for turn in face_check.TURNS:
-                found = models["faces"].process(np.ascontiguousarray(np.rot90(rgb, turn))).detections or []
-                turned += [(self._unturned(det.location_data.relative_bounding_box, turn, rgb.shape),
-                            float(det.score[0]) if det.score else 0.0) for det in found]
-            out = self._confirmed([(b, s) for b, s in turned if b[2] >= 2 and b[3] >= 2], rgb, matte)
+                view = np.ascontiguousarray(np.rot90(rgb, turn))
+                for box, score in self._boxes(models["faces"].process(view), view.shape):
+                    if self._mesh_finds(view, box):
+                        out.append((self._unturned(box, turn, view.shape), score))
         return out
 
     def _matte(self, rgb: np.ndarray, matte: list[np.ndarray | None]) -> np.ndarray | None:
@@ -137,13 +138,14 @@ class MediaPipeFaces:
         return matte[0]
 
     @staticmethod
-    def _unturned(b: Any, turn: int, shape: tuple[int, ...]) -> Box:
-        """A relative box found in the frame turned by ``turn`` quarter turns, as (x, y, w, h) px of
-        the frame of ``shape``."""
-        h, w = shape[:2]
-        x0, y0, x1, y1 = face_check.unturn_box(b.xmin, b.ymin, b.xmin + b.width, b.ymin + b.height, turn)
-        x0, y0, x1, y1 = max(0.0, x0 * w), max(0.0, y0 * h), min(float(w), x1 * w), min(float(h), y1 * h)
-        return x0, y0, x1 - x0, y1 - y0
+    def _unturned(box: Box, turn: int, turned_shape: tuple[int, ...]) -> Box:
+        """A box (x, y, w, h) px found in the frame turned by ``turn`` quarter turns (of
+        ``turned_shape``), as (x, y, w, h) px of the frame itself."""
+        th, tw = turned_shape[:2]
+        x, y, bw, bh = box
+        x0, y0, x1, y1 = face_check.unturn_box(x / tw, y / th, (x + bw) / tw, (y + bh) / th, turn)
+        h, w = (tw, th) if turn % 2 else (th, tw)
+        return x0 * w, y0 * h, (x1 - x0) * w, (y1 - y0) * h
 
     def _confirmed(self, found: list[tuple[Box, float]], rgb: np.ndarray,
                    matte: list[np.ndarray | None]) -> list[tuple[Box, float]]:
