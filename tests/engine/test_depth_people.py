@@ -124,6 +124,32 @@ def test_a_face_turned_a_quarter_turn_is_still_a_person(turn):
     assert turned.persons[0].distance_m == pytest.approx(upright.persons[0].distance_m, rel=0.2)
 
 
+@needs_mediapipe
+def test_the_turned_search_runs_one_frame_in_four_while_it_finds_nothing(monkeypatch):
+    """A person whose face is not visible (the restaurant man's face blurred away): the matte says
+    someone is there, no face is found upright or turned, so in a clip the turned search runs on
+    one frame in TURN_RETRY_FRAMES; on a turned face it runs on every frame (and finds it)."""
+    face = clip_frame(CLIPS / "visualvoice_noisy_restaurant.mp4", 100)
+    with PeopleDetector() as det:
+        x0, y0, x1, y1 = (int(v) for v in det(face).persons[0].face_box)
+    hidden = face.copy()
+    box = (slice(max(0, y0 - 20), y1 + 20), slice(max(0, x0 - 20), x1 + 20))
+    hidden[box] = cv2.GaussianBlur(face, (0, 0), 25)[box]
+    calls = []
+    real = PeopleDetector._faces
+    monkeypatch.setattr(PeopleDetector, "_faces", lambda self, m, s, f, rotated=False:
+                        calls.append(rotated) or real(self, m, s, f, rotated=rotated))
+    with PeopleDetector() as det:
+        for _ in range(9):
+            assert det(hidden).persons == []
+    assert calls.count(True) == 3 and calls.count(False) == 9  # frames 0, 4 and 8
+    calls.clear()
+    with PeopleDetector() as det:
+        turned = np.ascontiguousarray(np.rot90(clip_frame(LIPNET, 30)))
+        assert all(len(det(turned).persons) == 1 for _ in range(3))
+    assert calls.count(True) == 3
+
+
 def test_unturn_box_maps_a_box_back_from_each_quarter_turn():
     a = np.zeros((40, 60))
     a[5:15, 30:50] = 1  # x 30..50, y 5..15 of a 60 x 40 frame
