@@ -94,7 +94,7 @@ from typing import Callable, Iterable, Iterator
 import cv2
 import numpy as np
 
-from .cues import CueMap, focal_px
+from .cues import DEFAULT_HFOV_DEG, CueMap, focal_px
 from ..temporal.flow import PRESETS, dis_calc, fb_error, flow_size, to_flow_gray
 
 NAME = "parallax"
@@ -245,10 +245,10 @@ def analysis_size(width: int, height: int, long_side: int) -> tuple[int, int]:
     return flow_size(width, height, long_side)
 
 
-def default_K(width: int, height: int) -> np.ndarray:
+def default_K(width: int, height: int, hfov_deg: float = DEFAULT_HFOV_DEG) -> np.ndarray:
     """(3, 3) pinhole intrinsics in px for a ``width`` x ``height`` frame: principal point at
-    the centre, focal length :func:`cues.focal_px` (66 deg across the long side)."""
-    f = focal_px(max(width, height))
+    the centre, focal length :func:`cues.focal_px` (``hfov_deg``, default 66 deg, across the long side)."""
+    f = focal_px(max(width, height), hfov_deg)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 

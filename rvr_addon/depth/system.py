@@ -209,15 +209,10 @@ class DepthStream:
         self._refiner: ClipRefiner | None = None
         self.parallax = None
         if "parallax" in plan.cues:
-            from .cues import focal_px
-            from .parallax import ParallaxEstimator
+            from .parallax import ParallaxEstimator, default_K
 
-            K = None  # parallax refines the focal length from the clip's own tracks
-            if plan.hfov_given:
-                w, h = size
-                f = focal_px(max(w, h), plan.hfov_deg)
-                K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
-            self.parallax = ParallaxEstimator(K=K)
+            # without a given field of view, parallax refines the focal length from the clip's own tracks
+            self.parallax = ParallaxEstimator(K=default_K(*size, plan.hfov_deg) if plan.hfov_given else None)
 
     def close(self) -> None:
         """Free the people models (MediaPipe graphs)."""

@@ -510,4 +510,5 @@ def test_the_guessed_focal_length_is_across_the_long_side():
     landscape, portrait = default_K(640, 360), default_K(360, 640)
     assert landscape[0, 0] == portrait[0, 0] == pytest.approx(focal_px(640)) == pytest.approx(320 / np.tan(np.radians(33)))
     assert portrait[0, 2] == pytest.approx(179.5) and portrait[1, 2] == pytest.approx(319.5)
+    assert default_K(360, 640, 50.0)[0, 0] == pytest.approx(focal_px(640, 50.0))  # a given --hfov, as DepthStream uses it
     assert DepthPlan("auto", ("parallax", "network")).key()["fov_across"] == "long side"
