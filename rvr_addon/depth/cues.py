@@ -78,3 +78,16 @@ def inverse_depth_to_disparity(q: np.ndarray, width: int, q_ref: float = 0.0) ->
     """Metric inverse depth (1/m) -> D in DESIGN units at a frame ``width`` px wide; ``q_ref`` is
     the inverse depth put at D = 0 (the render's focus is set separately, so any value works)."""
     return (lens_constant(width) * (float(q_ref) - np.asarray(q, np.float32))).astype(np.float32)
+
+
+def scale_K(K: np.ndarray, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
+    """Intrinsics of the full frame (px, ``full_size`` = (W, H)) at another size (w, h)
+    (pixel centres at integer coordinates)."""
+    sx, sy = size[0] / full_size[0], size[1] / full_size[1]
+    K2 = np.array(K, np.float64).copy()
+    K2[0, 0] *= sx
+    K2[0, 1] *= sx
+    K2[1, 1] *= sy
+    K2[0, 2] = (K2[0, 2] + 0.5) * sx - 0.5
+    K2[1, 2] = (K2[1, 2] + 0.5) * sy - 0.5
+    return K2

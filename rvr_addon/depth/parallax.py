@@ -42,6 +42,11 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
 6. **Fusion.** The neighbours' scaled maps are fused by a confidence-weighted mean of the values
    that agree with their median; neighbours that disagree (an object moving along the epipolar
    line) lower the confidence.
+6b. **Photometric check** (:mod:`.sweep`, ``photometric_check``). A plane sweep of the fused
+   neighbours (in the clip's unit, at half the analysis size) finds each pixel's best depth from
+   the pictures themselves; where it contradicts the flow's depth by more than 10 %, the
+   confidence drops to 0.3 of itself (flow interpolated over a textureless patch or across a
+   depth edge). HoloLens office: the whole depth's per-frame error 0.366 -> 0.344.
 7. **Signal to noise.** The frame's depth structure (robust std of its log inverse depth, at
    least SNR_SIGNAL_FLOOR) over how much independent measurements of it disagree (the median
    |log ratio| of two pairs' maps, the spread of a pair's map against the earlier frames'
@@ -94,7 +99,8 @@ from typing import Callable, Iterable, Iterator
 import cv2
 import numpy as np
 
-from .cues import DEFAULT_HFOV_DEG, CueMap, focal_px
+from .cues import DEFAULT_HFOV_DEG, CueMap, focal_px, scale_K
+from .sweep import checked_confidence
 from ..temporal.flow import PRESETS, dis_calc, fb_error, flow_size, to_flow_gray
 
 NAME = "parallax"
@@ -250,19 +256,6 @@ def default_K(width: int, height: int, hfov_deg: float = DEFAULT_HFOV_DEG) -> np
     the centre, focal length :func:`cues.focal_px` (``hfov_deg``, default 66 deg, across the long side)."""
     f = focal_px(max(width, height), hfov_deg)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def scale_K(K: np.ndarray, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:
-    """Intrinsics of the full frame (px, ``full_size`` = (W, H)) at another size (w, h)
-    (pixel centres at integer coordinates)."""
-    sx, sy = size[0] / full_size[0], size[1] / full_size[1]
-    K2 = np.array(K, np.float64).copy()
-    K2[0, 0] *= sx
-    K2[0, 1] *= sx
-    K2[1, 1] *= sy
-    K2[0, 2] = (K2[0, 2] + 0.5) * sx - 0.5
-    K2[1, 2] = (K2[1, 2] + 0.5) * sy - 0.5
-    return K2
 
 
 # ------------------------------------------------------------------------------ geometry
@@ -618,13 +611,16 @@ class ParallaxEstimator:
     (:func:`refine_focal`) instead of keeping the 66 deg guess; flow_finest_scale: the finest
     pyramid level DIS refines its flow to (0: the analysis size itself; None: the preset's own,
     1 for "medium", half the analysis size; see :class:`PairFlow`); share_pairs: behind, prefer
-    an earlier frame whose pair with t is computed already (:meth:`_Run._shared_behind`).
+    an earlier frame whose pair with t is computed already (:meth:`_Run._shared_behind`);
+    photometric_check: lower the confidence where a plane sweep of t's neighbours contradicts
+    the flow's depth (:mod:`.sweep`, step 6b of the module docstring).
     """
 
     def __init__(self, analysis_long_side: int = 640, window: int = 8, K: np.ndarray | None = None,
                  per_side: int = 1, target_parallax_px: float = 5.0, min_parallax_px: float = 0.3,
                  preset: str = "medium", refine_focal: bool = True,
-                 flow_finest_scale: int | None = FLOW_FINEST_SCALE, share_pairs: bool = True) -> None:
+                 flow_finest_scale: int | None = FLOW_FINEST_SCALE, share_pairs: bool = True,
+                 photometric_check: bool = True) -> None:
         if window < 1:
             raise ValueError(f"ParallaxEstimator: window must be >= 1, got {window}")
         self.analysis_long_side = int(analysis_long_side)
@@ -637,6 +633,7 @@ class ParallaxEstimator:
         self.refine_focal = bool(refine_focal)
         self.flow_finest_scale = flow_finest_scale
         self.share_pairs = bool(share_pairs)
+        self.photometric_check = bool(photometric_check)
 
     # ---------------------------------------------------------------- public API
 
@@ -1177,6 +1174,7 @@ class _Run:
             unit, reset = med, True
             self.epoch += 1
         qs, cs = [], []
+        views = []  # (gray, R, T in the clip's unit) of the neighbours fused, for the sweep
         for j, q, conf, ang, p in maps:
             if j == ref[0]:
                 r = unit
@@ -1189,6 +1187,7 @@ class _Run:
                 continue
             qs.append(q / np.float32(r))
             cs.append(conf)
+            views.append((buf[j].gray, p.R, p.T * r))
         Q, C = np.stack(qs), np.stack(cs)
         disagree = []  # median |log ratio| of every two pairs' maps where both trust
         for a in range(len(qs)):
@@ -1213,6 +1212,9 @@ class _Run:
             c_out = np.where(n_valid >= 2, c_or, 0.9 * W.max(0)).astype(np.float32)
             q_out = np.where(sw > 1e-6, q_out, np.nan).astype(np.float32)
         c_out = np.where(np.isfinite(q_out), c_out, 0).astype(np.float32)
+        contradicted = None
+        if self.est.photometric_check:
+            c_out, contradicted = checked_confidence(t.gray, views, self.K, q_out, c_out)
         # signal to noise: the spread of the frame's log inverse depth against how much two
         # independent measurements of it disagree (pairs, or a pair and the earlier frames'
         # prediction at the tracks); near 1 the map holds no structure the noise does not
@@ -1235,7 +1237,8 @@ class _Run:
                 "focal_refined": self.focal_refined,
                 "pair_disagreement": round(max(disagree), 4) if disagree else None,
                 "track_spread": round(max(spreads.values()), 4) if spreads else None,
-                "snr": None if snr is None else round(snr, 3), "rotation_ratio": self.ratios}
+                "snr": None if snr is None else round(snr, 3), "rotation_ratio": self.ratios,
+                "photometric_contradicted": None if contradicted is None else round(contradicted, 4)}
         return (q_out, c_out, f_snr, info), "parallax", best
 
 

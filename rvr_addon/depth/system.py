@@ -57,6 +57,8 @@ class DepthPlan:
             out["hfov_deg"] = self.hfov_deg if self.hfov_given else "guessed"
             out["fov_across"] = "long side"  # since 2026-12-07 (was the width: portrait clips' focal too short)
             out["fusion"] = self.fusion.describe()
+        if "parallax" in self.cues:
+            out["parallax_check"] = "plane sweep"  # since 2026-12-07 (caches made before it recompute)
         return out
 
     def summary(self) -> str:

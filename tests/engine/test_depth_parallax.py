@@ -231,28 +231,48 @@ def test_upsample_keeps_holes_and_shape():
     np.testing.assert_allclose(uq[np.isfinite(uq)], 0.5, rtol=1e-5)
 
 
-@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real_video_depth/hololens_office absent")
-@pytest.mark.parametrize("known_k", [True, False], ids=["true_K", "guessed_K"])
-def test_real_hololens_error_on_trusted_pixels(known_k):
-    """Measured: 0.28 / 0.59 covered with the true K, 0.25 / 0.62 with the guessed (refined) one."""
+def _holo_trusted(known_k: bool, photometric_check: bool = True) -> tuple[list[float], list[float]]:
+    """Per-frame error on the trusted pixels (>100 of them) and trusted coverage, HoloLens 14..25."""
     from rvr_addon.depth.real_video import open_rgbd_clip
     clip = open_rgbd_clip(REAL)
     start, stop = 14, 26
     errs, cover = [], []
-    maps = ParallaxEstimator(K=clip.K if known_k else None, window=4).maps(clip.rgb_frames(start, stop))
+    maps = ParallaxEstimator(K=clip.K if known_k else None, window=4,
+                             photometric_check=photometric_check).maps(clip.rgb_frames(start, stop))
     for i, m in enumerate(maps):
         gt = clip.frame(start + i).inverse_depth
         tr = (m.confidence > 0.5) & np.isfinite(gt)
         cover.append(tr.sum() / np.isfinite(gt).sum())
         if tr.sum() > 100:
             errs.append(affine_invariant_error(m.inverse_depth, gt, tr))
-    assert len(errs) >= 10
+    return errs, cover
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real_video_depth/hololens_office absent")
+@pytest.mark.parametrize("known_k", [True, False], ids=["true_K", "guessed_K"])
+def test_real_hololens_error_on_trusted_pixels(known_k):
+    """Measured (with the photometric check): 0.16 with 0.58 covered (12 frames) with the true K,
+    0.19 with 0.34 covered (8 of 12 frames) with the guessed (refined) one; without the check
+    0.24 / 0.64 and 0.29 / 0.54."""
+    errs, cover = _holo_trusted(known_k)
+    assert len(errs) >= BOUND_HOLO_FRAMES[known_k]
     assert np.mean(errs) < BOUND_HOLO_MEAN
-    assert np.mean(cover) > BOUND_HOLO_COVER
+    assert np.mean(cover) > BOUND_HOLO_COVER[known_k]
 
 
-BOUND_HOLO_MEAN = 0.35
-BOUND_HOLO_COVER = 0.45
+BOUND_HOLO_MEAN = 0.23
+BOUND_HOLO_COVER = {True: 0.5, False: 0.28}
+BOUND_HOLO_FRAMES = {True: 12, False: 7}
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real_video_depth/hololens_office absent")
+def test_real_hololens_photometric_check_keeps_the_better_pixels():
+    """The plane sweep's check takes trust away where it contradicts the flow: what stays trusted
+    is nearer the measured depth (true K: 0.24 -> 0.16) at a small cost in coverage (0.64 -> 0.58)."""
+    errs_off, cover_off = _holo_trusted(True, photometric_check=False)
+    errs_on, cover_on = _holo_trusted(True, photometric_check=True)
+    assert np.mean(errs_on) < 0.8 * np.mean(errs_off)
+    assert 0.8 * np.mean(cover_off) < np.mean(cover_on) < np.mean(cover_off)
 
 
 def test_a_frame_without_its_own_pairs_gets_the_earlier_frames_depth(monkeypatch):
