@@ -7,18 +7,17 @@ distance to the epipolar line). The plane sweep asks the pictures themselves ins
 ``planes`` inverse depths q (fronto-parallel planes in the reference view, uniform in q, so
 uniform in parallax), every neighbour is warped into the reference view by the plane's
 homography ``K (R + T [0 0 q]) K^-1``, the warp is scored by zero-mean normalised
-cross-correlation over ``window`` x ``window`` patches, the neighbours' costs are averaged, the
-cost slice is smoothed by a guided filter on the reference frame (edge-aware aggregation,
-Hosni et al. 2013), and each pixel takes the best plane (refined by a parabola through its
-neighbours). The sweep needs no flow and sees all the neighbours at once.
+cross-correlation over ``window`` x ``window`` patches, the neighbours' costs are averaged, and each
+pixel takes the best plane (refined by a parabola through its neighbours). The sweep needs no
+flow and sees all the neighbours at once.
 
 The check keeps the flow's depth (it is finer) and lowers its confidence where the sweep's
 best depth disagrees with it by more than ``tolerance`` in log inverse depth: there the
 fusion falls back on the other cues. Measured on the HoloLens office walk (real, measured depth;
 ``rvr eval-estimator --real-video``, docs/depth.md): the whole depth's per-frame error
-0.366 -> 0.344 at half the parallax cue's analysis size and 48 planes (full size: 0.344 at
-about 5x the time); the sweep's own depth in place of the flow's was worse (0.375), and so was
-a two-view sweep per pair (0.350-0.352).
+0.366 -> 0.345 at half the parallax cue's analysis size and 32 planes (full size, 48 planes:
+0.344 at about 8x the time; a third of the size: 0.347); the sweep's own depth in place of the
+flow's was worse (0.375), and so was a two-view sweep per pair (0.350-0.352).
 
 Units: q in the caller's inverse-depth unit (the translations ``T`` given in the same unit's
 inverse, i.e. ``x_v = R x_ref + T`` with depth 1/q); images uint8 or float gray of one size; K
@@ -36,13 +35,12 @@ from .cues import scale_K
 SWEEP_SHRINK = 2
 """The sweep runs at the analysis size divided by this (its result is upsampled): at full size
 the HoloLens figure was the same (0.3441 against 0.3442) at about 5 times the cost."""
-SWEEP_PLANES = 48
-"""Planes between 0 and ``q_max`` (uniform in inverse depth; 32 planes: 0.348)."""
-SWEEP_WINDOW = 5
-"""Side (px at the sweep's size) of the normalised cross-correlation's patch."""
-SWEEP_GUIDE_RADIUS = 5
-SWEEP_GUIDE_EPS = 1e-3
-"""Guided filter of each cost slice (radius px at the sweep's size; eps on 0..1 gray)."""
+SWEEP_PLANES = 32
+"""Planes between 0 and ``q_max`` (uniform in inverse depth). HoloLens: 0.3451 (48: 0.3439)."""
+SWEEP_WINDOW = 7
+"""Side (px at the sweep's size) of the normalised cross-correlation's patch: the cost's only
+aggregation (a guided filter of each cost slice on the frame, radius 5 over 5 px patches,
+scored 0.3442 against 0.3439 at about 1.4 times the time)."""
 CHECK_TOLERANCE = 0.1
 """|log(q_flow / q_sweep)| above which the flow's depth counts as contradicted."""
 CHECK_PENALTY = 0.3
@@ -55,14 +53,13 @@ _INVALID_COST = 1.2
 
 
 def plane_sweep(ref: np.ndarray, views: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
-                K: np.ndarray, q_max: float, planes: int = SWEEP_PLANES, window: int = SWEEP_WINDOW,
-                guide_radius: int = SWEEP_GUIDE_RADIUS, guide_eps: float = SWEEP_GUIDE_EPS) -> np.ndarray:
+                K: np.ndarray, q_max: float, planes: int = SWEEP_PLANES,
+                window: int = SWEEP_WINDOW) -> np.ndarray:
     """Inverse depth (h, w) float32 of every pixel of ``ref`` by a plane sweep over ``views``.
 
     ref: (h, w) gray (0..255). views: (gray of the same size, R (3, 3), T (3,)) per neighbour,
     ``x_view = R x_ref + T`` with T in the unit whose inverse q is. K: (3, 3) px at this size.
-    q_max: the nearest plane's inverse depth (planes at q_max/planes .. q_max). guide_radius 0:
-    box aggregation only.
+    q_max: the nearest plane's inverse depth (planes at q_max/planes .. q_max).
     """
     if not views:
         raise ValueError("plane_sweep: no neighbouring view to sweep")
@@ -71,33 +68,39 @@ def plane_sweep(ref: np.ndarray, views: Sequence[tuple[np.ndarray, np.ndarray, n
     ref = np.ascontiguousarray(ref, np.float32)
     h, w = ref.shape
     ks = (int(window), int(window))
-    Ki = np.linalg.inv(np.asarray(K, np.float64))
+    K = np.asarray(K, np.float64)
+    Ki = np.linalg.inv(K)
     ref_mean = cv2.boxFilter(ref, -1, ks)
     ref_var = cv2.boxFilter(ref * ref, -1, ks) - ref_mean * ref_mean
-    guide = ref / np.float32(255.0)
-    imgs = [(np.ascontiguousarray(g, np.float32), np.asarray(R, np.float64), np.asarray(T, np.float64))
-            for g, R, T in views]
+    # +1: a warped 0 marks a pixel that falls outside the neighbour
+    imgs = [(np.ascontiguousarray(g, np.float32) + np.float32(1.0), np.asarray(R, np.float64),
+             np.asarray(T, np.float64)) for g, R, T in views]
     qs = np.linspace(q_max / planes, q_max, planes)
     vol = np.empty((planes, h, w), np.float32)
     total = np.empty((h, w), np.float32)
     seen = np.empty((h, w), np.float32)
     for k, q in enumerate(qs):
-        total[:] = 0
-        seen[:] = 0
+        total.fill(0.0)
+        seen.fill(0.0)
         for img, R, T in imgs:
-            H = np.asarray(K, np.float64) @ (R + np.outer(T, [0.0, 0.0, q])) @ Ki
+            H = K @ (R + np.outer(T, [0.0, 0.0, q])) @ Ki
             warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                         borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
-            valid = warped >= 0
-            warped = np.where(valid, warped, ref)
-            m = cv2.boxFilter(warped, -1, ks)
-            var = cv2.boxFilter(warped * warped, -1, ks) - m * m
-            cov = cv2.boxFilter(ref * warped, -1, ks) - ref_mean * m
-            cost = 1.0 - cov / np.sqrt(np.maximum(ref_var * var, 0.0) + 4.0)
-            total += np.where(valid, cost, 0.0)
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+            valid = warped > 0.5
+            warped -= np.float32(1.0)
+            np.copyto(warped, ref, where=~valid)
+            sums = cv2.boxFilter(cv2.merge([warped, warped * warped, ref * warped]), -1, ks)
+            m = sums[..., 0]
+            var = sums[..., 1] - m * m
+            cov = sums[..., 2] - ref_mean * m
+            var *= ref_var
+            np.maximum(var, 0.0, out=var)
+            var += np.float32(4.0)
+            cost = np.float32(1.0) - cov / np.sqrt(var)  # 1 - ZNCC: 0 (equal) .. 2
+            total += np.where(valid, cost, np.float32(0.0))
             seen += valid
-        agg = np.where(seen > 0, total / np.maximum(seen, 1.0), _INVALID_COST).astype(np.float32)
-        vol[k] = cv2.ximgproc.guidedFilter(guide, agg, int(guide_radius), float(guide_eps)) if guide_radius else agg
+        np.divide(total, np.maximum(seen, np.float32(1.0)), out=vol[k])
+        vol[k][seen == 0] = _INVALID_COST
     best = vol.argmin(0)
     b0 = np.clip(best, 1, planes - 2)[None]
     c_lo = np.take_along_axis(vol, b0 - 1, 0)[0]
