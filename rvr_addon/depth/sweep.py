@@ -48,8 +48,6 @@ CHECK_PENALTY = 0.3
 repeated texture and where no neighbour sees the pixel)."""
 MIN_TRUSTED = 100
 """Fewer trusted pixels than this: nothing to check (the confidence is returned as is)."""
-_INVALID_COST = 1.2
-"""Cost of a plane where no neighbour sees the pixel (a ZNCC cost is 0..2; 1 = uncorrelated)."""
 
 
 def plane_sweep(ref: np.ndarray, views: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -72,23 +70,18 @@ def plane_sweep(ref: np.ndarray, views: Sequence[tuple[np.ndarray, np.ndarray, n
     Ki = np.linalg.inv(K)
     ref_mean = cv2.boxFilter(ref, -1, ks)
     ref_var = cv2.boxFilter(ref * ref, -1, ks) - ref_mean * ref_mean
-    # +1: a warped 0 marks a pixel that falls outside the neighbour
-    imgs = [(np.ascontiguousarray(g, np.float32) + np.float32(1.0), np.asarray(R, np.float64),
-             np.asarray(T, np.float64)) for g, R, T in views]
+    imgs = [(np.ascontiguousarray(g, np.float32), np.asarray(R, np.float64), np.asarray(T, np.float64))
+            for g, R, T in views]
     qs = np.linspace(q_max / planes, q_max, planes)
-    vol = np.empty((planes, h, w), np.float32)
-    total = np.empty((h, w), np.float32)
-    seen = np.empty((h, w), np.float32)
+    vol = np.zeros((planes, h, w), np.float32)
+    weight = np.float32(1.0 / len(imgs))
     for k, q in enumerate(qs):
-        total.fill(0.0)
-        seen.fill(0.0)
         for img, R, T in imgs:
+            # outside the neighbour its border is repeated: such pixels score noise there, as
+            # their flow does (the cue does not trust a pixel whose flow leaves the frame)
             H = K @ (R + np.outer(T, [0.0, 0.0, q])) @ Ki
             warped = cv2.warpPerspective(img, H, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
-            valid = warped > 0.5
-            warped -= np.float32(1.0)
-            np.copyto(warped, ref, where=~valid)
+                                         borderMode=cv2.BORDER_REPLICATE)
             sums = cv2.boxFilter(cv2.merge([warped, warped * warped, ref * warped]), -1, ks)
             m = sums[..., 0]
             var = sums[..., 1] - m * m
@@ -96,11 +89,9 @@ def plane_sweep(ref: np.ndarray, views: Sequence[tuple[np.ndarray, np.ndarray, n
             var *= ref_var
             np.maximum(var, 0.0, out=var)
             var += np.float32(4.0)
-            cost = np.float32(1.0) - cov / np.sqrt(var)  # 1 - ZNCC: 0 (equal) .. 2
-            total += np.where(valid, cost, np.float32(0.0))
-            seen += valid
-        np.divide(total, np.maximum(seen, np.float32(1.0)), out=vol[k])
-        vol[k][seen == 0] = _INVALID_COST
+            cov /= np.sqrt(var)
+            vol[k] -= cov  # minus the ZNCC: -1 (equal) .. 1
+        vol[k] *= weight
     best = vol.argmin(0)
     b0 = np.clip(best, 1, planes - 2)[None]
     c_lo = np.take_along_axis(vol, b0 - 1, 0)[0]

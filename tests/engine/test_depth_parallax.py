@@ -386,6 +386,8 @@ def test_pair_flow_refined_to_the_analysis_size_is_sub_pixel():
         PairFlow("slow")
     with pytest.raises(ValueError, match="flow_finest_scale"):
         PairFlow("medium", -1)
+    with pytest.raises(ValueError, match="patch_stride"):
+        PairFlow("medium", 0, 0)
 
 
 def _two_views(n: int = 400, seed: int = 0):
