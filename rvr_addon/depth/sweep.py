@@ -16,7 +16,8 @@ best depth disagrees with it by more than ``tolerance`` in log inverse depth: th
 fusion falls back on the other cues. Measured on the HoloLens office walk (real, measured depth;
 ``rvr eval-estimator --real-video``, docs/depth.md): the whole depth's per-frame error
 0.366 -> 0.345 at half the parallax cue's analysis size and 32 planes (full size, 48 planes:
-0.344 at about 8x the time; a third of the size: 0.347); the sweep's own depth in place of the
+0.344 at about 8x the time; a third of the size: 0.347; 0.346 with 24 planes and the cue's
+sparser flow since); the sweep's own depth in place of the
 flow's was worse (0.375), and so was a two-view sweep per pair (0.350-0.352).
 
 Units: q in the caller's inverse-depth unit (the translations ``T`` given in the same unit's
@@ -35,8 +36,10 @@ from .cues import scale_K
 SWEEP_SHRINK = 2
 """The sweep runs at the analysis size divided by this (its result is upsampled): at full size
 the HoloLens figure was the same (0.3441 against 0.3442) at about 5 times the cost."""
-SWEEP_PLANES = 32
-"""Planes between 0 and ``q_max`` (uniform in inverse depth). HoloLens: 0.3451 (48: 0.3439)."""
+SWEEP_PLANES = 24
+"""Planes between 0 and ``q_max`` (uniform in inverse depth; the best is refined by a parabola).
+HoloLens office, with the pairs' flow of FLOW_PATCH_STRIDE 4: 0.3467 / 0.3464 / 0.3481 at 16 /
+24 / 32 planes (with the flow of stride 3: 0.3451 at 32, 0.3439 at 48)."""
 SWEEP_WINDOW = 7
 """Side (px at the sweep's size) of the normalised cross-correlation's patch: the cost's only
 aggregation (a guided filter of each cost slice on the frame, radius 5 over 5 px patches,
