@@ -254,6 +254,13 @@ def test_plan_key_of_one_cue_has_no_fusion_settings():
     assert "fusion" in DepthPlan("auto", ("people", "network")).key()
 
 
+def test_plan_key_names_the_parallax_check_only_with_parallax():
+    """Caches made before the parallax cue's photometric check (2026-12-07) recompute; a still
+    camera's cache (people + network) is not invalidated by it."""
+    assert "parallax_check" in DepthPlan("auto", ("parallax", "network")).key()
+    assert "parallax_check" not in DepthPlan("auto", ("people", "network")).key()
+
+
 def test_a_reused_auto_run_reads_each_frame_once_and_decodes_none(still_clip, tmp_path, weights, fake_people,
                                                                    monkeypatch):
     """Editors re-run often: with every frame of the cache intact, an auto run checks each
