@@ -16,6 +16,8 @@ perfect, 1 = a constant; scale and shift fitted per frame):
   hold across frames?), and ``scale_spread``: the spread (std of log) over frames of the
   per-frame median of cue / GT on trusted pixels (0 = one scale for the clip);
 
+- ``photometric_contradicted_median``: the median over frames of the share of trusted pixels the
+  photometric check (a plane sweep, rvr_addon/depth/sweep.py) contradicted (0 without the check);
 - ``focal_ratio``: the focal length the cue used (info ``focal_px``; with ``guess``, refined from
   the tracks) over the data set's;
 
@@ -82,6 +84,7 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
     n = len(clip) if frames is None else min(frames, len(clip))
     est = ParallaxEstimator(K=K)
     trusted, filled, ramp, cover, ratios, nonempty = [], [], [], [], [], 0
+    contradicted: list[float] = []
     focal = None
     pool_p, pool_g, rows = [], [], []
     t0 = time.perf_counter()
@@ -91,6 +94,8 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
         valid = np.isfinite(gt)
         tr = valid & (m.confidence > 0.5)
         nonempty += bool(m.info.get("parallax"))
+        if m.info.get("photometric_contradicted") is not None:
+            contradicted.append(float(m.info["photometric_contradicted"]))
         if focal is None and m.info.get("focal_px"):
             focal = float(m.info["focal_px"])
         cover.append(float(tr.sum() / max(valid.sum(), 1)))
@@ -120,6 +125,7 @@ def evaluate_clip(root: Path, K: np.ndarray | None, frames: int | None, sheet_ev
         "clip_affine_error": (affine_invariant_error(np.concatenate(pool_p), np.concatenate(pool_g))
                               if pool_p else 1.0),
         "scale_spread": float(np.std(np.log(ratios))) if len(ratios) > 1 else 0.0,
+        "photometric_contradicted_median": float(np.median(contradicted)) if contradicted else 0.0,
         "frames": float(n),
         "focal_ratio": (focal / float(clip.K[0, 0])) if focal else 0.0,
         "eval_s_per_frame": elapsed / max(n, 1),
@@ -139,15 +145,19 @@ def self_consistency(path: Path, frames: int) -> dict[str, float]:
             break
         imgs.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
     cap.release()
-    cover, snr, nonempty = [], [], 0
+    cover, snr, contradicted, nonempty = [], [], [], 0
     for m in ParallaxEstimator().maps(iter(imgs)):
         cover.append(float(np.mean(m.confidence > 0.5)))
         nonempty += bool(m.info.get("parallax"))
         if m.info.get("snr") is not None:
             snr.append(float(m.info["snr"]))
+        if m.info.get("photometric_contradicted") is not None:
+            contradicted.append(float(m.info["photometric_contradicted"]))
     n = max(len(imgs), 1)
     return {"coverage": float(np.mean(cover)) if cover else 0.0, "parallax_frames": nonempty / n,
-            "snr_median": float(np.median(snr)) if snr else 0.0, "frames": float(len(imgs))}
+            "snr_median": float(np.median(snr)) if snr else 0.0,
+            "photometric_contradicted_median": float(np.median(contradicted)) if contradicted else 0.0,
+            "frames": float(len(imgs))}
 
 
 def speed(root: Path, size: tuple[int, int], frames: int) -> tuple[float, float]:
