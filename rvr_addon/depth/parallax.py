@@ -186,6 +186,11 @@ photometric check (:mod:`.sweep`) HoloLens office scored 0.3473 at 3, 0.3481 at 
 each pair's flow took 67 / 52 / 43 ms at 640x360, which pays for the check. 6 is not taken: on
 exactly known synthetic planes (tests) its flow is less precise (per-frame error on trusted
 pixels 0.07-0.13 at 3, 0.06-0.15 at 4, 0.09-0.16 and one frame 0.41 at 6)."""
+MEMORY_FLOW_PRESET = "fast"
+"""DIS preset of the memory's flows (one per carried frame, PROPAGATE_FRAMES a frame; the preset's
+own pyramid level): "fast" takes 3 ms at 640x360 where "medium" took 12; HoloLens office 0.3473
+against 0.3464 (flicker 0.065 both), within the run-to-run spread of the settings around it. A
+point the flow carries wrongly does not reproject onto its pixel and is dropped (REPROJECT_TOL_PX)."""
 ANGLE_MIN_PX, ANGLE_FULL_PX = 1.0, 3.0
 """Triangulation angle, as px of de-rotated parallax at analysis size, under which a pixel is
 not trusted at all / from which it is fully trusted."""
@@ -740,7 +745,7 @@ class _Run:
     def __init__(self, est: ParallaxEstimator) -> None:
         self.est = est
         self.dis = PairFlow(est.preset, est.flow_finest_scale)
-        self.dis_memory = PairFlow(est.preset, None, None)  # the memory's one flow a frame: the reprojection test checks it
+        self.dis_memory = PairFlow(MEMORY_FLOW_PRESET, None, None)  # the memory's flows: the reprojection test checks them
         self.size: tuple[int, int] | None = None
         self.K: np.ndarray | None = None
         self.next_id = 0
