@@ -47,7 +47,7 @@ Per frame t, at an analysis size (long side ``analysis_long_side`` px):
    neighbours (in the clip's unit, at half the analysis size) finds each pixel's best depth from
    the pictures themselves; where it contradicts the flow's depth by more than 10 %, the
    confidence drops to 0.3 of itself (flow interpolated over a textureless patch or across a
-   depth edge). HoloLens office: the whole depth's per-frame error 0.366 -> 0.346.
+   depth edge). HoloLens office: the whole depth's per-frame error 0.366 -> 0.347.
 7. **Signal to noise.** The frame's depth structure (robust std of its log inverse depth, at
    least SNR_SIGNAL_FLOOR) over how much independent measurements of it disagree (the median
    |log ratio| of two pairs' maps, the spread of a pair's map against the earlier frames'

@@ -16,8 +16,8 @@ best depth disagrees with it by more than ``tolerance`` in log inverse depth: th
 fusion falls back on the other cues. Measured on the HoloLens office walk (real, measured depth;
 ``rvr eval-estimator --real-video``, docs/depth.md): the whole depth's per-frame error
 0.366 -> 0.345 at half the parallax cue's analysis size and 32 planes (full size, 48 planes:
-0.344 at about 8x the time; a third of the size: 0.347; 0.346 with 24 planes and the cue's
-sparser flow since); the sweep's own depth in place of the
+0.344 at about 8x the time; a third of the size: 0.347; 0.347 as shipped: 24 planes, the cue's
+sparser pair flow and cheaper memory flow); the sweep's own depth in place of the
 flow's was worse (0.375), and so was a two-view sweep per pair (0.350-0.352).
 
 Units: q in the caller's inverse-depth unit (the translations ``T`` given in the same unit's
