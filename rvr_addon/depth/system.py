@@ -58,7 +58,7 @@ class DepthPlan:
             out["fov_across"] = "long side"  # since 2026-12-07 (was the width: portrait clips' focal too short)
             out["fusion"] = self.fusion.describe()
         if "parallax" in self.cues:
-            out["parallax_check"] = "plane sweep; pair flow patches every 4 px"  # since 2026-12-07 (caches made before recompute)
+            out["parallax_check"] = "plane sweep; pair flow patches every 4 px; memory flow fast"  # since 2026-12-07 (caches made before recompute)
         return out
 
     def summary(self) -> str:
