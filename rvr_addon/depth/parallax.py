@@ -624,7 +624,8 @@ class ParallaxEstimator:
     per_side: neighbours chosen behind and ahead (1-2); target_parallax_px: the median
     de-rotated parallax of the tracks (px at analysis size) a neighbour should reach (the
     nearest that does is taken, else the one with the most); min_parallax_px: the homography
-    residual (px) under which a pair counts as rotation only / a plane; preset: DIS preset;
+    residual (px) under which a pair counts as rotation only / a plane; preset: the pairs' DIS preset (the
+    memory's flows: MEMORY_FLOW_PRESET);
     refine_focal: without K, pick the focal length from the clip's first frames
     (:func:`refine_focal`) instead of keeping the 66 deg guess; flow_finest_scale: the finest
     pyramid level DIS refines its flow to (0: the analysis size itself; None: the preset's own,
