@@ -57,8 +57,11 @@ class DepthPlan:
             out["hfov_deg"] = self.hfov_deg if self.hfov_given else "guessed"
             out["fov_across"] = "long side"  # since 2026-12-07 (was the width: portrait clips' focal too short)
             out["fusion"] = self.fusion.describe()
-        if "parallax" in self.cues:
-            out["parallax_check"] = "plane sweep; pair flow patches every 4 px; memory flow fast"  # since 2026-12-07 (caches made before recompute)
+        if "parallax" in self.cues:  # since 2026-12-07 (caches made before recompute)
+            from .parallax import FLOW_PATCH_STRIDE, MEMORY_FLOW_PRESET
+
+            out["parallax_check"] = (f"plane sweep; pair flow patches every {FLOW_PATCH_STRIDE} px; "
+                                     f"memory flow {MEMORY_FLOW_PRESET}")
         return out
 
     def summary(self) -> str:
