@@ -66,18 +66,30 @@ def focal_px(long_side: int, hfov_deg: float = DEFAULT_HFOV_DEG) -> float:
     return 0.5 * float(long_side) / float(np.tan(np.radians(hfov_deg) / 2.0))
 
 
-def lens_constant(width: int) -> float:
-    """K of ``D = K (q_ref - q)`` (px * m) for the reference lens at a frame ``width`` px wide:
-    blur radius on the sensor ~ (A f / 2) |1/S_f - 1/S| (A = f / N, the aperture diameter),
-    in px of this width."""
+def blur_span(width: int, height: int) -> int:
+    """The side of a (width, height) frame, in px, that the reference lens's sensor width spans:
+    the long side. A phone held upright (a portrait clip) then gives the blur of the same phone
+    held sideways, as the long side of a camera's sensor is its width whichever way it is held
+    (Cycles' AUTO sensor fit does the same). D stays in px of the frame's native width."""
+    return max(int(width), int(height))
+
+
+def lens_constant(width: int, height: int | None = None) -> float:
+    """K of ``D = K (q_ref - q)`` (px * m) for the reference lens at a ``width`` x ``height`` px
+    frame (``height`` None: a landscape frame): blur radius on the sensor ~ (A f / 2)
+    |1/S_f - 1/S| (A = f / N, the aperture diameter), in px, the sensor's width spanning the
+    frame's long side (:func:`blur_span`)."""
+    span = blur_span(width, height) if height is not None else int(width)
     aperture_m = REFERENCE_FOCAL_M / REFERENCE_F_NUMBER
-    return 0.5 * aperture_m * REFERENCE_FOCAL_M * float(width) / REFERENCE_SENSOR_WIDTH_M
+    return 0.5 * aperture_m * REFERENCE_FOCAL_M * float(span) / REFERENCE_SENSOR_WIDTH_M
 
 
-def inverse_depth_to_disparity(q: np.ndarray, width: int, q_ref: float = 0.0) -> np.ndarray:
-    """Metric inverse depth (1/m) -> D in DESIGN units at a frame ``width`` px wide; ``q_ref`` is
-    the inverse depth put at D = 0 (the render's focus is set separately, so any value works)."""
-    return (lens_constant(width) * (float(q_ref) - np.asarray(q, np.float32))).astype(np.float32)
+def inverse_depth_to_disparity(q: np.ndarray, width: int, q_ref: float = 0.0,
+                               height: int | None = None) -> np.ndarray:
+    """Metric inverse depth (1/m) -> D in DESIGN units at a ``width`` x ``height`` frame (``height``
+    None: landscape); ``q_ref`` is the inverse depth put at D = 0 (the render's focus is set
+    separately, so any value works)."""
+    return (lens_constant(width, height) * (float(q_ref) - np.asarray(q, np.float32))).astype(np.float32)
 
 
 def scale_K(K: np.ndarray, full_size: tuple[int, int], size: tuple[int, int]) -> np.ndarray:

@@ -163,13 +163,14 @@ def smooth_fill(guide: np.ndarray, values: np.ndarray, weights: np.ndarray, lam:
 class DepthFuser:
     """Fuses one clip's frames, in order (it keeps the clip's scale, q_ref and network fit).
 
-    width: the clip's native width (DESIGN units are px at this width).
+    width, height: the clip's native size (DESIGN units are px at this width; the reference
+    lens's sensor spans the long side, :func:`.cues.blur_span`; ``height`` None: landscape).
     """
 
-    def __init__(self, width: int, settings: FusionSettings = FusionSettings()) -> None:
+    def __init__(self, width: int, settings: FusionSettings = FusionSettings(), height: int | None = None) -> None:
         self.width = int(width)
         self.settings = settings
-        self.K = lens_constant(self.width)
+        self.K = lens_constant(self.width, height)
         self.parallax_scale: float | None = None
         self.scale_source: str | None = None
         self.q_ref = 1.0 / settings.default_distance_m

@@ -204,7 +204,7 @@ class DepthStream:
         self.plan = plan
         self.network = network
         self.overlap = bool(overlap)
-        self.fuser = DepthFuser(size[0], plan.fusion)
+        self.fuser = DepthFuser(size[0], plan.fusion, height=size[1])
         self.people = None
         self.notes: list[str] = []
         if "people" in plan.cues:

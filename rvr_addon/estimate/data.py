@@ -83,6 +83,7 @@ from typing import Iterable
 import numpy as np
 
 from ..color import linear_to_srgb, srgb_to_linear
+from ..depth.cues import blur_span
 from ..errors import InputError
 from ..io.paths import natural_key, temp_sibling
 
@@ -157,7 +158,8 @@ class SampleSource:
 class TrainSample:
     """A drawn, resized and cropped sample; arrays are float32 (h, w, 3) sRGB in [0, 1].
 
-    frame_width: width in px of the whole resized frame the crop comes from (D_rel -> px).
+    frame_width: the long side in px of the whole resized frame the crop comes from (D_rel -> px;
+        its width unless the source is portrait, :func:`..depth.cues.blur_span`).
     alpha, beta: the primary target's factors, beta in px at the working resolution (kind ``gt``:
         no target; ``target`` is the input, unused).
     adjusted: (third image, alpha, beta) of a triplet, or None for a pair.
@@ -988,8 +990,8 @@ class TrainingSet:
             ch, cw = min(aug.crop, size[1]), min(aug.crop, size[0])
             y0 = int(rng.integers(size[1] - ch + 1))
             x0 = int(rng.integers(size[0] - cw + 1))
-        frame_width = float(size[0])
-        px_scale = frame_width / src.native_width
+        frame_width = float(blur_span(*size))  # D_rel is a share of the long side (a portrait source's height)
+        px_scale = size[0] / src.native_width
         flip = aug.flip and bool(rng.integers(2))
 
         def prep(img: np.ndarray) -> np.ndarray:

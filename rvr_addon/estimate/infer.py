@@ -281,13 +281,15 @@ class Estimator:
     def _pass(self, frame: np.ndarray, max_pixels: int, full_size: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """One pass of the network on ``frame`` shrunk to at most ``max_pixels``; (D, E) at full
         size (sliced and gated by the full-size frame), or at the shrunk size (``full_size``
-        False; D still in px at the full width)."""
+        False; D still in px at the full width). D_rel is a share of the frame's long side
+        (:func:`..depth.cues.blur_span`: a portrait frame gets the blur of a landscape one)."""
         if self.model.backend == "onnx":
             return self._onnx(frame, max_pixels, full_size)
         import cv2
         import torch
 
         from ..color import image_to_linear, linear_to_srgb, to_float01
+        from ..depth.cues import blur_span
         from .unet import disparity_to_px
 
         h, w = frame.shape[:2]
@@ -301,7 +303,7 @@ class Estimator:
             small = torch.from_numpy(np.ascontiguousarray(shrunk, dtype=np.float32)).permute(2, 0, 1)[None]
         with torch.inference_mode():
             out = self.model.net(small, guide_srgb=full if small is not full and full_size else None)
-            d = disparity_to_px(out.disparity_rel, float(w))[0, 0].numpy()
+            d = disparity_to_px(out.disparity_rel, float(blur_span(w, h)))[0, 0].numpy()
             e = out.exponent[0].permute(1, 2, 0).numpy()
         return np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(e, dtype=np.float32)
 
@@ -310,6 +312,7 @@ class Estimator:
         import cv2
 
         from ..color import image_to_linear, linear_to_srgb, to_float01
+        from ..depth.cues import blur_span
         from .onnx_infer import DISPARITY_PERCENT
 
         h, w = frame.shape[:2]
@@ -321,7 +324,7 @@ class Estimator:
             shrunk = linear_to_srgb(cv2.resize(image_to_linear(frame), size, interpolation=cv2.INTER_AREA))
             small, guide = np.ascontiguousarray(shrunk, dtype=np.float32), srgb if full_size else None
         d_rel, e = self.model.net(small, guide)
-        d = d_rel * np.float32(w / DISPARITY_PERCENT)
+        d = d_rel * np.float32(blur_span(w, h) / DISPARITY_PERCENT)
         return np.ascontiguousarray(d, dtype=np.float32), np.ascontiguousarray(e, dtype=np.float32)
 
 
@@ -487,6 +490,8 @@ class EstimateJob:
                "source_hash": source["hash"], "resolution": list(size),
                "depth": self.depth.describe() if self.depth is not None else
                "network" if self.plan.cues == ("network",) else self.plan.key()}
+        if size[1] > size[0]:  # since 2026-12-07: a portrait clip's D spans its long side (caches made before recompute)
+            key["blur_span"] = "long side"
         if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         if self.estimator is not None and self.estimator.context_pixels:

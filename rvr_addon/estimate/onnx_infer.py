@@ -14,7 +14,7 @@ import numpy as np
 LEAK_BOUND = 0.01
 """The soft bound's linear share (``unet.BOUND_LEAK``)."""
 DISPARITY_PERCENT = 100.0
-"""D_rel = 1 is a radius of (frame width / DISPARITY_PERCENT) px (``unet.DISPARITY_PERCENT``)."""
+"""D_rel = 1 is a radius of (frame long side / DISPARITY_PERCENT) px (``unet.DISPARITY_PERCENT``)."""
 LUMA = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
 

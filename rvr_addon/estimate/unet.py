@@ -41,10 +41,12 @@ of a light is itself clipped the loss has no gradient on E, Adam's momentum kept
 exp(50 E) overflowed float32 within 40 steps on the tiny test scene. The logits' bias starts at -6:
 E = E_max * 0.0025 (a x1.017 gain) at clipped pixels, exactly 0 elsewhere.
 
-Disparity unit of the network: ``D_rel``, percent of the frame width (``D_rel = 1`` is a blur
-radius of W/100 px at aperture scale 1). It does not change when a frame is resized, so the
-network is trained at any resolution and run at any other; :func:`disparity_to_px` converts to
-DESIGN units (px at the frame's native width): ``D = D_rel * W_native / 100``.
+Disparity unit of the network: ``D_rel``, percent of the frame's long side (``D_rel = 1`` is a
+blur radius of L/100 px at aperture scale 1; L = W for a landscape frame, H for a portrait one,
+so a phone held upright blurs as much as held sideways: :func:`..depth.cues.blur_span`). It does
+not change when a frame is resized, so the network is trained at any resolution and run at any
+other; :func:`disparity_to_px` converts to DESIGN units (px at the frame's native width):
+``D = D_rel * L_native / 100``.
 
 D_rel is softly bounded: ``D_rel = M tanh(g / M) + 0.01 g`` of the grid value g, M =
 ``max_disparity`` (25: a blur radius of a quarter of the frame width at aperture 1, far beyond
@@ -83,7 +85,8 @@ from .bilateral import bilateral_slice, luma
 LEAK = 0.2
 """Negative slope of the leaky ReLUs."""
 DISPARITY_PERCENT = 100.0
-"""D_rel = 1 is a radius of (frame width / DISPARITY_PERCENT) px."""
+"""D_rel = 1 is a radius of (frame span / DISPARITY_PERCENT) px, the span being the frame's long side
+(its width when landscape; :func:`..depth.cues.blur_span`)."""
 E_BIAS_INIT = -6.0
 """Initial bias of the E logits: sigmoid(-6) = 0.0025, a radiance gain of max_gain ** 0.0025."""
 
@@ -169,7 +172,7 @@ class EstimatorConfig:
 
 
 class EstimatorOutput(NamedTuple):
-    """disparity_rel: (B, 1, H, W) D_rel (% of frame width, + = behind focus).
+    """disparity_rel: (B, 1, H, W) D_rel (% of the frame's long side, + = behind focus).
     exponent: (B, 3, H, W) 0 <= E <= E_max (log space, eq. 3)."""
 
     disparity_rel: torch.Tensor
@@ -232,7 +235,9 @@ def grow_state_dict(state: dict[str, torch.Tensor], old: EstimatorConfig,
 
 
 def disparity_to_px(disparity_rel: torch.Tensor, frame_width: float | torch.Tensor) -> torch.Tensor:
-    """D_rel (% of frame width) -> px of blur radius at aperture 1 for a frame ``frame_width`` px wide."""
+    """D_rel (% of the frame's span) -> px of blur radius at aperture 1 for a frame whose span
+    (``frame_width``: its long side, :func:`..depth.cues.blur_span`; a landscape frame's width) is
+    ``frame_width`` px."""
     if isinstance(frame_width, torch.Tensor):
         frame_width = frame_width.to(disparity_rel).reshape(-1, *([1] * (disparity_rel.ndim - 1)))
     return disparity_rel * (frame_width / DISPARITY_PERCENT)

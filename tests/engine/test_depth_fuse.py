@@ -93,6 +93,20 @@ def test_design_units_two_people():
     assert fuser.q_ref is not None and np.isfinite(fuser.q_ref)
 
 
+def test_a_portrait_clip_spans_its_long_side():
+    """The reference lens's sensor spans the frame's long side, so a 360x640 (portrait) clip gets
+    the K of a 640x360 one: the same phone held upright blurs as much, in px, as held sideways."""
+    from rvr_addon.depth.cues import blur_span, inverse_depth_to_disparity
+
+    assert blur_span(360, 640) == blur_span(640, 360) == 640
+    assert lens_constant(360, 640) == pytest.approx(lens_constant(640)) == pytest.approx(lens_constant(640, 360))
+    assert lens_constant(360) == pytest.approx(lens_constant(640) * 360 / 640)
+    assert DepthFuser(360, height=640).K == pytest.approx(lens_constant(640))
+    assert DepthFuser(640, height=360).K == pytest.approx(DepthFuser(640).K)
+    q = np.array([0.5, 1.0], np.float32)
+    assert np.allclose(inverse_depth_to_disparity(q, 360, height=640), inverse_depth_to_disparity(q, 640))
+
+
 def scene_q(h: int = H, w: int = W) -> np.ndarray:
     """True inverse depth (1/m): a backdrop at 4 m, a box at 2 m, a near box at 1 m."""
     q = np.full((h, w), 0.25, np.float32)

@@ -338,3 +338,28 @@ def test_the_shipped_weights_brighten_only_pixels_near_clipping():
     _d, e_old = Estimator(model, context_pixels=0)(frame)
     assert float(e_old[22:48, 22:78].max()) > 0.0  # the old gate brightened the wall
     np.testing.assert_array_equal(e[60:70, 100:110], e_old[60:70, 100:110])
+
+
+def test_a_portrait_frame_gets_the_blur_of_a_landscape_one(weights, tmp_path):
+    """D_rel is a share of the frame's long side: a phone held upright gives D in px scaled by its
+    height, not its (short) width, so the same scene is not blurred 0.56x as much in portrait; the
+    cache key says so for portrait clips only (landscape caches stay valid)."""
+    from rvr_addon.estimate.unet import disparity_to_px
+
+    model = load_estimator(weights[0])
+    rng = np.random.default_rng(3)
+    portrait = cv2.resize((rng.random((12, 8, 3)) * 255).astype(np.uint8), (64, 96), interpolation=cv2.INTER_CUBIC)
+    d, _e = Estimator(model, context_pixels=0)(portrait)
+    x = torch.from_numpy(portrait.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    with torch.inference_mode():
+        rel = model.net(x).disparity_rel
+    assert np.allclose(d, disparity_to_px(rel, 96.0)[0, 0].numpy(), atol=1e-4)
+    assert not np.allclose(d, disparity_to_px(rel, 64.0)[0, 0].numpy(), atol=1e-3)
+    for name, (h, w) in (("portrait", (40, 30)), ("landscape", (30, 40))):
+        folder = tmp_path / name
+        folder.mkdir()
+        cv2.imwrite(str(folder / "f.png"), cv2.resize(portrait, (w, h)))
+        job = run(folder, tmp_path / f"cache_{name}", weights=weights[0], depth_method="network")
+        meta = json.loads((tmp_path / f"cache_{name}" / "meta.json").read_text())
+        assert (meta.get("blur_span") == "long side") == (name == "portrait")
+        assert job.computed == 1
