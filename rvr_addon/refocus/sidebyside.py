@@ -16,17 +16,36 @@ GAP_PX = 4
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:
-    """``image`` (H, W, 3) uint8 RGB with ``text`` drawn in its top-left corner (white on a dark box)."""
+    """``image`` (H, W, 3) uint8 RGB with ``text`` drawn in its top-left corner (white on a dark box);
+    text wider than the image (a portrait clip's narrow column) is shrunk, then wrapped at spaces."""
     import cv2
 
     out = np.ascontiguousarray(image).copy()
-    h = out.shape[0]
+    h, w = out.shape[:2]
+    font = cv2.FONT_HERSHEY_SIMPLEX
     scale = max(0.35, h / 720)
-    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(1, int(scale * 2)))
+
+    def size(s: str, sc: float) -> tuple[int, int, int]:
+        (tw, th), base = cv2.getTextSize(s, font, sc, max(1, int(sc * 2)))
+        return tw, th, base
+
     pad = max(2, int(6 * scale))
-    cv2.rectangle(out, (0, 0), (tw + 2 * pad, th + base + 2 * pad), (0, 0, 0), -1)
-    cv2.putText(out, text, (pad, pad + th), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255),
-                max(1, int(scale * 2)), cv2.LINE_AA)
+    room = max(1, w - 2 * pad)
+    fit = room / max(1, size(text, 1.0)[0])
+    scale = max(0.3, min(scale, fit)) if fit < scale else scale
+    lines: list[str] = []
+    for word in text.split(" "):
+        if lines and size(lines[-1] + " " + word, scale)[0] <= room:
+            lines[-1] += " " + word
+        else:
+            lines.append(word)
+    thick = max(1, int(scale * 2))
+    _tw, th, base = size(text, scale)
+    step = th + base + pad
+    width = max(size(s, scale)[0] for s in lines)
+    cv2.rectangle(out, (0, 0), (min(w, width + 2 * pad), step * len(lines) + pad), (0, 0, 0), -1)
+    for i, s in enumerate(lines):
+        cv2.putText(out, s, (pad, pad + th + i * step), font, scale, (255, 255, 255), thick, cv2.LINE_AA)
     return out
 
 

@@ -231,3 +231,22 @@ def test_the_render_decodes_each_cache_frame_once(clip, reference, tmp_path, mon
     assert len(frames) == N
     assert sum(reads[n] for n in frames) <= N + 1, reads
     np.testing.assert_array_equal(frames_of(out), frames_of(reference / "r.mp4"))
+
+
+def test_a_label_fits_a_narrow_portrait_column():
+    """A caption wider than its picture (a portrait clip's column on the contact sheet) is shrunk,
+    then wrapped, so no text runs into the next column; a wide picture keeps one line."""
+    from rvr_addon.refocus.sidebyside import label
+
+    text = "frame 120 (4.8 s), focus D=-3.21 (face)"
+    for h, w in ((720, 404), (240, 60), (30, 20), (360, 640)):
+        out = label(np.full((h, w, 3), 80, np.uint8), text)
+        assert out.shape == (h, w, 3)
+        if w >= 60:  # the text ends before the right edge: nothing cut off
+            assert np.flatnonzero((out > 200).all(axis=2).any(axis=0)).max() < w - 2
+    wide = label(np.full((360, 640, 3), 80, np.uint8), text)
+    rows = np.flatnonzero((wide == 0).all(axis=2).any(axis=1))
+    narrow = label(np.full((720, 120, 3), 80, np.uint8), text)
+    rows_n = np.flatnonzero((narrow == 0).all(axis=2).any(axis=1))
+    assert rows_n.max() > rows.max()  # wrapped into more than one line
+    assert (narrow[: rows_n.max() + 1] == 255).any()
