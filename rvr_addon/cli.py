@@ -139,7 +139,7 @@ def add_render_parser(sub) -> None:
     add_device_arg(p)
     p.add_argument("-o", "--output", action="append", type=Path, default=None,
                    help="output .mp4 or image folder (repeatable; a folder/frame_%%05d.exr pattern "
-                        "writes linear EXR)")
+                        "writes linear EXR; a one-frame render may write one picture: OUT.jpg/.png/.tif/.exr)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 

@@ -21,7 +21,7 @@ from .io.paths import check_outputs, replace_folder
 from .io.readahead import ReadAhead
 from .io.track import FocusTrack, constant_track, load_track, resolve_track, warn_keys_beyond
 from .io.video import ClipInfo, iter_frames, probe_clip
-from .io.writer import ImageSequenceWriter, VideoWriter
+from .io.writer import STILL_SUFFIXES, ImageSequenceWriter, StillImageWriter, VideoWriter
 from .render.aperture import ApertureSpec
 from .render.device import make_renderer
 from .render.fast import FastRenderer
@@ -42,7 +42,8 @@ class RenderSettings:
     track / track_data: a focus track file, or one in memory (e.g. sampled from F-curves);
         either overrides focus and aperture.
     outputs: .mp4/.mov/.mkv files (H.264, source audio kept) and/or folders or patterns
-        (``frame_%05d.png``; a ``.exr`` pattern writes linear HDR radiance).
+        (``frame_%05d.png``; a ``.exr`` pattern writes linear HDR radiance), or one picture
+        (``photo_refocused.jpg``, .png, .tif, .exr) when the render has one frame.
     scale: render at this fraction of the clip's size (a proxy, e.g. 0.5); blur radii scale
         with the width, so the picture matches the full-size render, only smaller.
     frames: the clip frame of each output frame, never decreasing (a slowed-down clip repeats
@@ -126,6 +127,12 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
 
 
 IMAGE_SUFFIXES = (".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff")
+
+
+def is_still_output(out: Path) -> bool:
+    """Whether an output path is one picture (``photo_refocused.jpg``: an image type, no frame
+    number field), as opposed to a video, a folder or a numbered sequence."""
+    return "%" not in out.name and out.suffix.lower() in STILL_SUFFIXES
 
 
 def sequence_writer(out: Path, start: int = 1) -> ImageSequenceWriter:
@@ -221,6 +228,11 @@ class RenderJob:
                              f"({self.clip.frame_count} frames)")
         self.start, self.stop = start, stop
         self.total = stop - start if self.frame_list is None else len(self.frame_list)
+        stills = [out for out in s.outputs if is_still_output(Path(out))]
+        if stills and self.total != 1:
+            raise InputError(f"output {stills[0]}: a picture holds one frame, this render has {self.total}: give a "
+                             f"video (.mp4), a numbered sequence ({Path(stills[0]).stem}_%05d{Path(stills[0]).suffix}), "
+                             "or one frame (--start N --stop N+1)")
         self.depth = open_map_sequence(s.depth, kind="disparity", scale=s.depth_scale, offset=s.depth_offset)
         if len(self.depth) > 1 and len(self.depth) < stop:
             raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "
@@ -283,6 +295,8 @@ class RenderJob:
             if out.suffix.lower() in VIDEO_SUFFIXES:
                 w = VideoWriter(out, fps=s.output_fps or self.clip.fps, size=size, audio_from=audio,
                                 audio_start=self.start / self.clip.fps)
+            elif is_still_output(out):
+                w = StillImageWriter(out)
             else:
                 w = sequence_writer(out, start=self.start + 1 if self.frame_list is None else 1)
             self._writers.append(w)
@@ -370,7 +384,7 @@ class RenderJob:
     def _write(self, linear: np.ndarray) -> None:
         srgb8 = None
         for w in self._writers:
-            if isinstance(w, ImageSequenceWriter) and w.pattern.lower().endswith(".exr"):
+            if getattr(w, "linear", False):  # an EXR sequence or picture: linear HDR radiance
                 w.write(linear.astype(np.float32))
             else:
                 if srgb8 is None:

@@ -254,6 +254,11 @@ class ImageSequenceWriter(_AtomicWriter):
         self._shape: tuple[int, ...] | None = None
         self._closed = False
 
+    @property
+    def linear(self) -> bool:
+        """True when the frames take linear float RGB (an EXR sequence), not display sRGB bytes."""
+        return self.suffix == ".exr"
+
     def write(self, frame: np.ndarray) -> Path:
         """Write the next frame; returns the final path it will have after close()."""
         if self._closed:
@@ -325,3 +330,87 @@ class ImageSequenceWriter(_AtomicWriter):
             return
         self._closed = True
         shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+STILL_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
+"""Picture types :class:`StillImageWriter` writes (EXR: linear HDR radiance, float32 RGB)."""
+JPEG_QUALITY = 95
+
+
+class StillImageWriter(_AtomicWriter):
+    """Write one picture (a refocused photo) to ``path``, atomically: into a hidden temp file beside
+    it, renamed onto ``path`` by ``close()``; ``abort()`` deletes the temp and an earlier picture at
+    ``path`` survives. PNG/JPG/TIF take (H, W, 3) uint8 RGB, ``.exr`` float linear RGB. A second
+    frame is refused: a picture holds one."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.suffix = self.path.suffix.lower()
+        if self.suffix not in STILL_SUFFIXES:
+            raise InputError(f"'{self.path}': a picture is written as {', '.join(STILL_SUFFIXES)}; rename it")
+        if self.path.is_dir():
+            raise OutputError(f"'{self.path}' is a folder; give a file name for the picture")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as ex:
+            raise output_error(self.path, ex, "create the folder of") from ex
+        self._tmp = temp_sibling(self.path, self.suffix)
+        self.frames_written = 0
+        self._closed = False
+
+    @property
+    def linear(self) -> bool:
+        """True when the picture takes linear float RGB (EXR), not display sRGB bytes."""
+        return self.suffix == ".exr"
+
+    def write(self, frame: np.ndarray) -> Path:
+        """Write the picture (to the temp file until ``close()``); returns its final path."""
+        if self._closed:
+            raise OutputError(f"The writer for '{self.path}' is already closed; open a new one.")
+        if self.frames_written:
+            raise InputError(f"'{self.path}' is a single picture, but the render has more than one frame: give a "
+                             f"video (.mp4) or a numbered sequence ({self.path.stem}_%05d{self.path.suffix})")
+        frame = np.asarray(frame)
+        want_float = self.linear
+        ok_type = np.issubdtype(frame.dtype, np.floating) if want_float else frame.dtype == np.uint8
+        if not ok_type or frame.ndim != 3 or frame.shape[2] != 3:
+            kind = "float linear RGB" if want_float else "uint8 RGB"
+            raise InputError(f"the picture for '{self.path}' is {frame.dtype} {frame.shape}; expected (H, W, 3) {kind}")
+        try:
+            if want_float:
+                from .exr import write_exr
+
+                write_exr(self._tmp, {"R": frame[:, :, 0].astype(np.float32), "G": frame[:, :, 1].astype(np.float32),
+                                      "B": frame[:, :, 2].astype(np.float32)})
+            else:
+                import cv2
+
+                params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if self.suffix in (".jpg", ".jpeg") else []
+                if not cv2.imwrite(str(self._tmp), np.ascontiguousarray(frame[:, :, ::-1]), params):
+                    raise OutputError(f"Cannot write the picture '{self.path}'; check free disk space and that the "
+                                      "folder is writable (an earlier picture there is kept).")
+        except OSError as ex:
+            raise output_error(self.path, ex, "write") from ex
+        self.frames_written = 1
+        return self.path
+
+    def close(self) -> None:
+        """Move the finished picture onto ``path`` (replacing an earlier one only now)."""
+        if self._closed:
+            return
+        if not self.frames_written:
+            self.abort()
+            raise OutputError(f"No picture was rendered for '{self.path}'; nothing was saved (an earlier one is kept).")
+        self._closed = True
+        try:
+            os.replace(self._tmp, self.path)
+        except OSError as ex:
+            self._tmp.unlink(missing_ok=True)
+            raise output_error(self.path, ex, "move the finished picture onto") from ex
+
+    def abort(self) -> None:
+        """Delete the temp file; ``path`` is left as it was."""
+        if self._closed:
+            return
+        self._closed = True
+        self._tmp.unlink(missing_ok=True)

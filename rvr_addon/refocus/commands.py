@@ -36,8 +36,9 @@ def add_parser(sub) -> None:
                                    "pin), rendered with a real lens's shallow depth of field. Re-running the same "
                                    "command reuses the finished work (Ctrl-C is safe).")
     p.add_argument("input", nargs="?", type=Path, help="the clip: a video file (any FFmpeg reads) or an image folder")
-    p.add_argument("-o", "--output", type=Path, help="the refocused video (.mp4); default CLIP_refocused.mp4 beside "
-                                                     "the clip (--demo: out/demo/bikes_refocused.mp4)")
+    p.add_argument("-o", "--output", type=Path,
+                   help="the refocused video (.mp4; a photo: .jpg/.png/.tif/.exr); default CLIP_refocused.mp4 beside "
+                        "the clip, a photo's PHOTO_refocused.jpg (--demo: out/demo/bikes_refocused.mp4)")
     p.add_argument("--demo", action="store_true",
                    help="refocus the built-in real demo clip (a 10 s street montage) into out/demo/: the video, a "
                         "before | after video and a contact sheet")
@@ -94,7 +95,7 @@ def settings_from_args(args: argparse.Namespace):
     """The :class:`~rvr_addon.refocus.job.RefocusSettings` of the command line."""
     from ..render.aperture import ApertureSpec
     from .demo import DEMO_OUT_DIR, demo_clip
-    from .job import RefocusSettings, derived_path
+    from .job import RefocusSettings, default_output, derived_path
 
     if args.demo:
         if args.input is not None:
@@ -108,7 +109,7 @@ def settings_from_args(args: argparse.Namespace):
             args.preview = ""
     if args.input is None:
         raise RvrError("rvr refocus needs a CLIP (or --demo); e.g. rvr refocus phone.mp4 -o phone_refocused.mp4")
-    output = args.output or args.input.with_name(args.input.stem + "_refocused.mp4")
+    output = args.output or default_output(args.input)
     if args.f_stop is not None:
         if not args.f_stop > 0:
             raise RvrError(f"--f-stop {args.f_stop}: give a positive f-number, e.g. 2 or 2.8")

@@ -89,6 +89,23 @@ def default_work_folder(source: Path, output: Path) -> Path:
     return Path(output).parent / "rvr_cache" / f"{Path(source).stem}-{str(digest)[:8]}"
 
 
+def is_picture(path: Path) -> bool:
+    """Whether ``path`` is one picture file (a photo: .jpg, .png, .tif, .exr), not a video, an
+    image folder or a frame pattern."""
+    from ..io.writer import STILL_SUFFIXES
+
+    path = Path(path)
+    return path.suffix.lower() in STILL_SUFFIXES and "%" not in path.name and path.is_file()
+
+
+def default_output(source: Path) -> Path:
+    """``CLIP_refocused.mp4`` beside the clip; a photo's is a picture of its own type
+    (``photo_refocused.jpg``)."""
+    source = Path(source)
+    suffix = source.suffix if is_picture(source) else ".mp4"
+    return source.with_name(source.stem + "_refocused" + suffix)
+
+
 def derived_path(output: Path, suffix: str) -> Path:
     """``OUT_DIR/STEM<suffix>`` (e.g. ``_side_by_side.mp4``, ``_sheet.png``, ``.focus.json``)."""
     output = Path(output)
@@ -135,10 +152,11 @@ def check_outputs(s: RefocusSettings) -> None:
     """Refuse outputs that would overwrite the clip (or lie inside its frames folder) or each
     other, before anything runs."""
     from ..io.paths import check_outputs as refuse_overlaps
-    from ..pipeline import VIDEO_SUFFIXES
+    from ..pipeline import VIDEO_SUFFIXES, is_still_output
 
-    if Path(s.output).suffix.lower() not in VIDEO_SUFFIXES:
-        raise InputError(f"-o {s.output}: the refocused video is a movie file; give a name ending in .mp4")
+    if Path(s.output).suffix.lower() not in VIDEO_SUFFIXES and not is_still_output(Path(s.output)):
+        raise InputError(f"-o {s.output}: the refocused video is a movie file; give a name ending in .mp4 "
+                         "(or, for a photo, .jpg, .png, .tif or .exr)")
     if s.side_by_side is not None and Path(s.side_by_side).suffix.lower() not in VIDEO_SUFFIXES:
         raise InputError(f"--side-by-side {s.side_by_side}: give a name ending in .mp4")
     if s.preview is not None and Path(s.preview).suffix.lower() not in (".png", ".jpg", ".jpeg"):
@@ -178,6 +196,14 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         s = replace(s, stop=s.start + max(1, int(round(s.duration_s * source.fps))), duration_s=None)
     work = Path(s.cache) if s.cache is not None else default_work_folder(Path(s.input), Path(s.output))
     proxy = needs_proxy(source, s.max_size, s.start, s.stop)
+    picture = is_picture(Path(s.input)) and source.frame_count == 1
+    from ..pipeline import is_still_output
+
+    if is_still_output(Path(s.output)):
+        stop = source.frame_count if s.stop is None else min(s.stop, source.frame_count)
+        if stop - s.start != 1:
+            raise InputError(f"-o {s.output}: a picture holds one frame, but '{s.input}' gives {max(0, stop - s.start)} "
+                             f"here; give a video name (.mp4), or one frame with --start N --stop N+1")
     run = RefocusRun(settings=s, work=work, clip=Path(s.input), cache=work / "cache")
     stages: list[Stage] = []
     factor = 1.0
@@ -187,7 +213,8 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
             raise InputError(f"--start {s.start} / --stop {s.stop}: the range is empty for '{s.input}' "
                              f"({source.frame_count} frames)")
         w, h = proxy_size(source.width, source.height, s.max_size)
-        run.clip = work / f"clip_{w}x{h}_{s.start}_{stop}.mp4"
+        # a photo's working copy is a lossless PNG (an H.264 copy would halve its colour resolution)
+        run.clip = work / (f"picture_{w}x{h}.png" if picture else f"clip_{w}x{h}_{s.start}_{stop}.mp4")
         factor = w / source.width
         run.frames, run.size = stop - s.start, (w, h)
         if (w, h) != (source.width, source.height):
@@ -197,6 +224,8 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         def build_proxy():
             if run.clip.is_file():
                 return None  # made by an earlier run (written atomically: complete)
+            if picture:
+                return OneShot(lambda: picture_copy(Path(s.input), run.clip, (w, h)))
             return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, stop, fps=s.fps, clip=source)
 
         stages.append(Stage("working copy", STAGE_COST["working copy"] * run.frames, build_proxy))
@@ -301,6 +330,21 @@ def _sheet(run: RefocusRun, s: RefocusSettings) -> None:
     from .preview import write_contact_sheet
 
     write_contact_sheet(Path(s.preview), run.clip, run.cache, Path(s.output), run.focus_file, rows=s.preview_rows)
+
+
+def picture_copy(source: Path, output: Path, size: tuple[int, int]) -> None:
+    """A photo's working copy: ``source`` resized (area filter) to ``size`` (w, h) and written as a
+    PNG ``output``, atomically."""
+    import cv2
+
+    from ..io.video import iter_frames
+    from ..io.writer import StillImageWriter
+
+    frame = next(iter(iter_frames(source)))
+    if (frame.shape[1], frame.shape[0]) != tuple(size):
+        frame = cv2.resize(frame, tuple(size), interpolation=cv2.INTER_AREA)
+    with StillImageWriter(output) as w:
+        w.write(frame)
 
 
 class OneShot:

@@ -250,3 +250,62 @@ def test_a_label_fits_a_narrow_portrait_column():
     rows_n = np.flatnonzero((narrow == 0).all(axis=2).any(axis=1))
     assert rows_n.max() > rows.max()  # wrapped into more than one line
     assert (narrow[: rows_n.max() + 1] == 255).any()
+
+
+def test_a_photo_is_refocused_into_a_picture_of_its_own_type(clip, tmp_path, capsys):
+    """``rvr refocus photo.png`` writes ``photo_refocused.png`` (not a one-frame video); a photo
+    larger than --max-size gets a lossless PNG working copy; a picture output of a multi-frame clip
+    is refused before any work (an earlier picture there survives), one frame of it is accepted."""
+    import cv2
+
+    frame = next(iter(iter_frames(clip)))
+    photo = tmp_path / "photo.png"
+    cv2.imwrite(str(photo), cv2.cvtColor(cv2.resize(frame, (128, 72)), cv2.COLOR_RGB2BGR))
+    assert main(["refocus", str(photo), "--max-size", "96", *FAST]) == 0
+    out = cv2.imread(str(tmp_path / "photo_refocused.png"))
+    assert out is not None and out.shape == (54, 96, 3)
+    assert (tmp_path / "photo_refocused.focus.json").is_file()
+    assert not list(tmp_path.glob("photo_refocused*.mp4"))
+    work = next((tmp_path / "rvr_cache").iterdir())
+    assert [p.name for p in work.glob("picture_*.png")] == ["picture_96x54.png"]
+    before = (tmp_path / "photo_refocused.png").read_bytes()
+    capsys.readouterr()
+    assert main(["refocus", str(clip), "-o", str(tmp_path / "photo_refocused.png"), *FAST]) != 0
+    err = capsys.readouterr().err
+    assert "a picture holds one frame" in err and "--start" in err
+    assert (tmp_path / "photo_refocused.png").read_bytes() == before  # nothing overwritten
+    assert [p.name for p in (tmp_path / "rvr_cache").iterdir()] == [work.name]  # refused before any work
+    assert main(["refocus", str(clip), "--start", "2", "--stop", "3", "-o", str(tmp_path / "f2.jpg"), *FAST]) == 0
+    assert cv2.imread(str(tmp_path / "f2.jpg")).shape == (36, 64, 3)
+
+
+def test_still_image_writer_is_atomic_and_holds_one_frame(tmp_path):
+    from rvr_addon.errors import InputError, OutputError
+    from rvr_addon.io.exr import read_exr
+    from rvr_addon.io.writer import StillImageWriter
+
+    target = tmp_path / "p.jpg"
+    target.write_bytes(b"earlier")
+    w = StillImageWriter(target)
+    w.write(np.full((4, 6, 3), 200, np.uint8))
+    assert target.read_bytes() == b"earlier"  # not before close
+    with pytest.raises(InputError, match="single picture"):
+        w.write(np.full((4, 6, 3), 200, np.uint8))
+    w.abort()
+    assert target.read_bytes() == b"earlier" and [p.name for p in tmp_path.iterdir()] == ["p.jpg"]
+    with StillImageWriter(target) as w:
+        w.write(np.full((4, 6, 3), 200, np.uint8))
+    import cv2
+
+    assert cv2.imread(str(target)).shape == (4, 6, 3)
+    with StillImageWriter(tmp_path / "h.exr") as w:
+        assert w.linear
+        w.write(np.full((4, 6, 3), 7.5, np.float32))
+    assert float(read_exr(tmp_path / "h.exr")["R"].max()) == pytest.approx(7.5)
+    with pytest.raises(InputError, match="uint8"):
+        StillImageWriter(tmp_path / "q.png").write(np.zeros((4, 6, 3), np.float32))
+    with pytest.raises(OutputError, match="No picture"):
+        StillImageWriter(tmp_path / "e.png").close()
+    with pytest.raises(InputError, match="picture is written as"):
+        StillImageWriter(tmp_path / "e.gif")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.exr", "p.jpg"]
