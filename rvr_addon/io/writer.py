@@ -219,7 +219,37 @@ def _unlink(path: Path) -> None:
         log.warning("Could not remove temp file '%s': %s", path, ex)
 
 
-class ImageSequenceWriter(_AtomicWriter):
+JPEG_QUALITY = 95
+"""JPEG quality of picture outputs (OpenCV's default is 95 too; said here so it is not implicit)."""
+
+
+def encode_picture(target: Path, frame: np.ndarray, suffix: str) -> bool:
+    """Write ``frame`` to ``target`` as the type ``suffix`` says: ".exr" float linear RGB as float32
+    R, G, B; else (H, W, 3) RGB bytes (or uint16) through OpenCV. False when OpenCV could not write;
+    OSError as raised."""
+    if suffix == ".exr":
+        from .exr import write_exr
+
+        write_exr(target, {c: frame[:, :, i].astype(np.float32, copy=False) for i, c in enumerate("RGB")})
+        return True
+    import cv2
+
+    params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if suffix in (".jpg", ".jpeg") else []
+    return bool(cv2.imwrite(str(target), np.ascontiguousarray(frame[:, :, ::-1]), params))
+
+
+class _PictureWriter(_AtomicWriter):
+    """A writer of picture files; ``suffix`` (lower case) picks their type."""
+
+    suffix = ".png"
+
+    @property
+    def linear(self) -> bool:
+        """True when the pictures take linear float RGB (EXR), not display sRGB bytes."""
+        return self.suffix == ".exr"
+
+
+class ImageSequenceWriter(_PictureWriter):
     """Write numbered frames into `directory`, replacing it atomically on success.
 
     pattern: printf file name ("frame_%05d.png"); the suffix picks the format. PNG/JPG/TIF take
@@ -254,11 +284,6 @@ class ImageSequenceWriter(_AtomicWriter):
         self._shape: tuple[int, ...] | None = None
         self._closed = False
 
-    @property
-    def linear(self) -> bool:
-        """True when the frames take linear float RGB (an EXR sequence), not display sRGB bytes."""
-        return self.suffix == ".exr"
-
     def write(self, frame: np.ndarray) -> Path:
         """Write the next frame; returns the final path it will have after close()."""
         if self._closed:
@@ -268,16 +293,9 @@ class ImageSequenceWriter(_AtomicWriter):
         self._check(frame, name)
         target = self._tmp / name
         try:
-            if self.suffix == ".exr":
-                from .exr import write_exr
-
-                write_exr(target, {"R": frame[:, :, 0], "G": frame[:, :, 1], "B": frame[:, :, 2]})
-            else:
-                import cv2
-
-                if not cv2.imwrite(str(target), np.ascontiguousarray(frame[:, :, ::-1])):
-                    raise OutputError(f"Cannot write frame '{self.directory / name}'; check free disk space and that "
-                                      "the folder is writable (nothing was saved, an earlier folder there is kept).")
+            if not encode_picture(target, frame, self.suffix):
+                raise OutputError(f"Cannot write frame '{self.directory / name}'; check free disk space and that "
+                                  "the folder is writable (nothing was saved, an earlier folder there is kept).")
         except OSError as ex:
             raise output_error(self.directory / name, ex, "write frame") from ex
         self.frames_written += 1
@@ -334,10 +352,9 @@ class ImageSequenceWriter(_AtomicWriter):
 
 STILL_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".exr")
 """Picture types :class:`StillImageWriter` writes (EXR: linear HDR radiance, float32 RGB)."""
-JPEG_QUALITY = 95
 
 
-class StillImageWriter(_AtomicWriter):
+class StillImageWriter(_PictureWriter):
     """Write one picture (a refocused photo) to ``path``, atomically: into a hidden temp file beside
     it, renamed onto ``path`` by ``close()``; ``abort()`` deletes the temp and an earlier picture at
     ``path`` survives. PNG/JPG/TIF take (H, W, 3) uint8 RGB, ``.exr`` float linear RGB. A second
@@ -358,11 +375,6 @@ class StillImageWriter(_AtomicWriter):
         self.frames_written = 0
         self._closed = False
 
-    @property
-    def linear(self) -> bool:
-        """True when the picture takes linear float RGB (EXR), not display sRGB bytes."""
-        return self.suffix == ".exr"
-
     def write(self, frame: np.ndarray) -> Path:
         """Write the picture (to the temp file until ``close()``); returns its final path."""
         if self._closed:
@@ -377,18 +389,9 @@ class StillImageWriter(_AtomicWriter):
             kind = "float linear RGB" if want_float else "uint8 RGB"
             raise InputError(f"the picture for '{self.path}' is {frame.dtype} {frame.shape}; expected (H, W, 3) {kind}")
         try:
-            if want_float:
-                from .exr import write_exr
-
-                write_exr(self._tmp, {"R": frame[:, :, 0].astype(np.float32), "G": frame[:, :, 1].astype(np.float32),
-                                      "B": frame[:, :, 2].astype(np.float32)})
-            else:
-                import cv2
-
-                params = [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY] if self.suffix in (".jpg", ".jpeg") else []
-                if not cv2.imwrite(str(self._tmp), np.ascontiguousarray(frame[:, :, ::-1]), params):
-                    raise OutputError(f"Cannot write the picture '{self.path}'; check free disk space and that the "
-                                      "folder is writable (an earlier picture there is kept).")
+            if not encode_picture(self._tmp, frame, self.suffix):
+                raise OutputError(f"Cannot write the picture '{self.path}'; check free disk space and that the "
+                                  "folder is writable (an earlier picture there is kept).")
         except OSError as ex:
             raise output_error(self.path, ex, "write") from ex
         self.frames_written = 1
