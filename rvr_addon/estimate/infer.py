@@ -492,6 +492,12 @@ class EstimateJob:
                "network" if self.plan.cues == ("network",) else self.plan.key()}
         if size[1] > size[0]:  # since 2026-12-07: a portrait clip's D spans its long side (caches made before recompute)
             key["blur_span"] = "long side"
+        if self.clip.kind == "video":
+            from ..io.video import video_transfer
+
+            transfer = video_transfer(self.clip.path)
+            if transfer is not None:  # since 2026-12-07 an HDR clip's frames are tone-mapped (caches made before recompute)
+                key["hdr_source"] = f"{transfer}, tone-mapped to SDR BT.709"
         if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         if self.estimator is not None and self.estimator.context_pixels:

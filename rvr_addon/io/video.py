@@ -5,8 +5,9 @@ as a folder (natural order: frame2 < frame10), a glob pattern ("shots/*.png") or
 pattern ("frames/f_%04d.png"). Videos are decoded by the ffmpeg bundled with imageio-ffmpeg
 through a pipe, not by cv2.VideoCapture: it converts YUV with the matrix the file is tagged
 with (OpenCV always uses BT.601, which shifts the colours of BT.709 HD video by ~13 levels)
-and applies display rotation, so phone frames come out upright. Image files are read with
-OpenCV. Frames are streamed, never held as a whole clip.
+and applies display rotation, so phone frames come out upright; an HDR clip (HLG, as iPhones
+record by default, or PQ) is tone-mapped to the SDR BT.709 the engine works in (:data:`HDR_TO_SDR`).
+Image files are read with OpenCV. Frames are streamed, never held as a whole clip.
 
 A video range that does not start at frame 0 is positioned by seeking (``seek_point``): from
 the demuxer's packet timestamps (listed without decoding, up to a little past the range:
@@ -19,6 +20,7 @@ a stream that does not begin with a keyframe) it decodes from the beginning.
 """
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -59,7 +61,68 @@ class ClipInfo:
     kind: str  # "video" or "images"
 
 
+HDR_TRANSFERS = {"arib-std-b67": "HLG", "smpte2084": "PQ (HDR10)"}
+"""Transfer functions (as ffmpeg names them) of HDR video: a phone's HDR clip (iPhone: HLG)."""
+HDR_TO_SDR = ("zscale=t=linear:npl=100,format=gbrpf32le,zscale=p=bt709,tonemap=tonemap=mobius:param=0.8:desat=0,"
+              "zscale=t=bt709:m=gbr:r=full,format=gbrp")
+"""The ffmpeg filters that bring an HDR frame to the SDR BT.709 the engine works in: to linear light
+(SDR white at 100 nits), BT.2020 primaries to BT.709, Mobius tone mapping (linear up to 0.8 of SDR
+white, about code 231, then a roll-off that keeps the highlights' gradation instead of clipping
+them, hue kept), the BT.709 transfer, full-range RGB. An SDR clip converted to HLG and decoded this
+way: 34.7 dB PSNR against itself on the restaurant clip, 45.9 dB on smooth gradients (decoded as if
+it were SDR, as before: 18.8 / 13.4 dB, dark and at half the saturation; Mobius at its default 0.3:
+33.9 / 26.4 dB, the bright half compressed)."""
+
+
 # ----------------------------------------------------------------------------- helpers
+
+
+@functools.lru_cache(maxsize=1)
+def _ffmpeg_has_tonemap() -> bool:
+    """Whether the bundled ffmpeg has the zscale and tonemap filters (HDR to SDR)."""
+    try:
+        out = subprocess.run([ffmpeg_exe(), "-hide_banner", "-filters"], capture_output=True, check=False)
+    except OSError:  # pragma: no cover - the binary ships with imageio-ffmpeg
+        return False
+    names = {line.split()[1] for line in out.stdout.decode("utf-8", "replace").splitlines() if len(line.split()) > 2}
+    return {"zscale", "tonemap"} <= names
+
+
+def hdr_transfer(description: str) -> str | None:
+    """The HDR transfer ("HLG", "PQ (HDR10)") of the first video stream in ffmpeg's description of
+    an input, or None for SDR."""
+    for line in description.splitlines():
+        if re.search(r"Stream #\d+:\d+.*: Video:", line):
+            return next((name for key, name in HDR_TRANSFERS.items() if key in line), None)
+    return None
+
+
+@functools.lru_cache(maxsize=64)
+def _video_transfer(path: str, mtime_ns: int, size: int) -> str | None:
+    """:func:`hdr_transfer` of a video file (keyed by its path, time and size: a replaced file is
+    read again)."""
+    run = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", path], capture_output=True, check=False)
+    return hdr_transfer(run.stderr.decode("utf-8", "replace"))
+
+
+def video_transfer(video: Path) -> str | None:
+    """The HDR transfer of a video file ("HLG", "PQ (HDR10)"), None for SDR."""
+    st = Path(video).stat()
+    return _video_transfer(str(video), st.st_mtime_ns, st.st_size)
+
+
+def _hdr_filter(video: Path) -> str | None:
+    """The filters that decode an HDR ``video`` to SDR (:data:`HDR_TO_SDR`), None for SDR or where
+    this ffmpeg cannot tone map (then the frames come as coded, and a warning says so)."""
+    transfer = video_transfer(video)
+    if transfer is None:
+        return None
+    if not _ffmpeg_has_tonemap():
+        log.warning("'%s' is HDR (%s), but this ffmpeg has no zscale/tonemap filter: its frames are read as if "
+                    "SDR (dark, desaturated); convert it to SDR BT.709 first, or reinstall imageio-ffmpeg",
+                    video, transfer)
+        return None
+    return HDR_TO_SDR
 
 
 def ffmpeg_exe() -> str:
@@ -512,14 +575,21 @@ def _video_command(video: Path, start: int, stop: int | None) -> list[str]:
         point = seek_point(scan, start) if scan is not None else None
         if point is None:
             log.debug("'%s': no exact seek point for frame %d; decoding from the first frame", video, start)
+    filters = []
     if point is not None:
         target, threshold = point
         cmd = head + ["-seek_timestamp", "1", "-ss", f"{target:.6f}", "-noaccurate_seek", "-copyts",
-                      "-i", str(video), *tail, "-vf", f"select=gte(t\\,{threshold:.9f})"]
+                      "-i", str(video), *tail]
+        filters.append(f"select=gte(t\\,{threshold:.9f})")
     else:
         cmd = head + ["-i", str(video), *tail]
         if start > 0:
-            cmd += ["-vf", f"select=gte(n\\,{start})"]
+            filters.append(f"select=gte(n\\,{start})")
+    hdr = _hdr_filter(video)
+    if hdr is not None:
+        filters.append(hdr)
+    if filters:
+        cmd += ["-vf", ",".join(filters)]
     if stop is not None:
         cmd += ["-frames:v", str(stop - start)]
     return cmd + ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
@@ -617,6 +687,10 @@ def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
             fps = DEFAULT_SEQUENCE_FPS
             log.warning("'%s' has no frame rate; assuming %.4g fps. Pass fps= to set it.", video, fps)
         _warn_if_vfr(video, description, fps)
+    transfer = hdr_transfer(description)
+    if transfer is not None and _ffmpeg_has_tonemap():
+        log.info("'%s' is HDR (%s): its frames are tone-mapped to SDR BT.709, which the engine and the refocused "
+                 "video use", video, transfer)
     return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video")
 
 

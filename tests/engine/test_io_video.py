@@ -367,3 +367,62 @@ def test_bundled_ffmpeg_gets_its_execute_bit_back(tmp_path):
     assert stat.S_IMODE(exe.stat().st_mode) == 0o755 and stat.S_IMODE(other.stat().st_mode) == 0o644
     assert restore_execute_bit(tmp_path) == []  # already executable: untouched
     assert restore_execute_bit(tmp_path / "missing") == []
+
+
+def _hlg_pair(tmp_path):
+    """The same 6 frames (ffmpeg's smooth colour gradients, 160x90) as an SDR BT.709 H.264 clip and
+    as an HLG (BT.2020, 10-bit HEVC) clip made from it, as a phone records HDR; skips where this
+    ffmpeg cannot make them."""
+    import subprocess
+
+    from rvr_addon.io.video import ffmpeg_exe
+
+    sdr, hlg = tmp_path / "sdr.mp4", tmp_path / "hlg.mp4"
+    tags = "setparams=color_primaries=bt709:color_trc=bt709:colorspace=bt709:range=tv"
+    to_hlg = (f"{tags},zscale=t=linear:npl=100:p=bt2020:m=gbr,format=gbrpf32le,"
+              "zscale=t=arib-std-b67:m=bt2020nc:r=tv,format=yuv420p10le")
+    runs = [["-f", "lavfi", "-i", "gradients=size=160x90:rate=10:seed=3", "-frames:v", "6",
+             "-vf", f"format=yuv420p,{tags}", "-c:v", "libx264", "-crf", "0", "-colorspace", "bt709",
+             "-color_primaries", "bt709", "-color_trc", "bt709", str(sdr)],
+            ["-i", str(sdr), "-vf", to_hlg, "-c:v", "libx265", "-x265-params", "log-level=error:lossless=1",
+             "-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc", str(hlg)]]
+    for args in runs:
+        out = subprocess.run([ffmpeg_exe(), "-y", "-hide_banner", "-v", "error", *args], capture_output=True)
+        if out.returncode != 0:
+            pytest.skip(f"this ffmpeg cannot make the HLG test clip: {out.stderr.decode()[-200:]}")
+    return sdr, hlg
+
+
+def test_an_hdr_phone_clip_is_tone_mapped_to_the_sdr_the_engine_works_in(tmp_path, caplog, monkeypatch):
+    """An HLG clip (an iPhone's HDR video) decoded as if it were SDR comes out dark and at about
+    half the saturation; decoded through the HDR-to-SDR filters it matches the SDR clip of the same
+    frames. Seeking into it gives the same frames; the probe says it is HDR."""
+    from rvr_addon.io import video as V
+
+    sdr, hlg = _hlg_pair(tmp_path)
+    assert V.video_transfer(hlg) == "HLG" and V.video_transfer(sdr) is None
+    ref = np.stack(list(iter_frames(sdr))).astype(np.float64)
+    with caplog.at_level(logging.INFO, logger="rvr_addon.io.video"):
+        info = probe_clip(hlg)
+    assert (info.width, info.height, info.frame_count) == (160, 90, 6)
+    assert "HDR (HLG)" in caplog.text and "tone-mapped" in caplog.text
+    mapped = np.stack(list(iter_frames(hlg))).astype(np.float64)
+    np.testing.assert_array_equal(np.stack(list(iter_frames(hlg, 2, 5))), mapped[2:5].astype(np.uint8))
+
+    def psnr(a):
+        return 10 * np.log10(255.0 ** 2 / np.mean((a - ref) ** 2))
+
+    monkeypatch.setattr(V, "_hdr_filter", lambda video: None)  # what the decoder did before
+    raw = np.stack(list(iter_frames(hlg))).astype(np.float64)
+    assert psnr(mapped) > 30.0 and psnr(raw) < 20.0, (psnr(mapped), psnr(raw))  # 36-46 / 12-13 dB here
+    assert abs(mapped.mean() - ref.mean()) < 3.0 < 10.0 < abs(raw.mean() - ref.mean())
+
+
+def test_hdr_transfer_reads_the_first_video_stream():
+    from rvr_addon.io.video import hdr_transfer
+
+    line = "  Stream #0:0[0x1](und): Video: hevc (Main 10), yuv420p10le(tv, bt2020nc/bt2020/{}), 1920x1080"
+    assert hdr_transfer(line.format("arib-std-b67")) == "HLG"
+    assert hdr_transfer(line.format("smpte2084")) == "PQ (HDR10)"
+    assert hdr_transfer(line.format("bt709")) is None
+    assert hdr_transfer("  Stream #0:1: Audio: aac, arib-std-b67") is None
