@@ -66,7 +66,7 @@ def add_parser(sub) -> None:
     p.add_argument("--max-size", type=int, default=DEFAULT_MAX_SIZE, metavar="PX",
                    help=f"work at a long side of at most PX (default {DEFAULT_MAX_SIZE}; 0 = the clip's size)")
     p.add_argument("--side-by-side", nargs="?", const="", type=str, metavar="OUT.mp4",
-                   help="also write a before | after video (default name OUT_side_by_side.mp4)")
+                   help="also write a before | after video (default name OUT_side_by_side.mp4; a photo's: a picture)")
     p.add_argument("--preview", nargs="?", const="", type=str, metavar="SHEET.png",
                    help="also write a contact sheet: frames with their depth and what is in focus "
                         "(default name OUT_sheet.png)")
@@ -120,7 +120,10 @@ def settings_from_args(args: argparse.Namespace):
         raise RvrError(f"--aperture {aperture}: give a blur strength >= 0 (0 = none)")
     if args.duration is not None and not args.duration > 0:
         raise RvrError(f"--duration {args.duration}: give a positive number of seconds")
-    side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, "_side_by_side.mp4"))
+    from ..pipeline import is_still_output
+
+    beside = "_side_by_side" + (output.suffix if is_still_output(output) else ".mp4")  # a photo's is a picture
+    side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, beside))
     sheet = None if args.preview is None else Path(args.preview or derived_path(output, "_sheet.png"))
     preset = args.preset  # None: the default preset, unless a subject is pinned (refocus_job decides)
     from ..laaf.commands import calm_cuts_from_args

@@ -157,8 +157,10 @@ def check_outputs(s: RefocusSettings) -> None:
     if Path(s.output).suffix.lower() not in VIDEO_SUFFIXES and not is_still_output(Path(s.output)):
         raise InputError(f"-o {s.output}: the refocused video is a movie file; give a name ending in .mp4 "
                          "(or, for a photo, .jpg, .png, .tif or .exr)")
-    if s.side_by_side is not None and Path(s.side_by_side).suffix.lower() not in VIDEO_SUFFIXES:
-        raise InputError(f"--side-by-side {s.side_by_side}: give a name ending in .mp4")
+    if s.side_by_side is not None and Path(s.side_by_side).suffix.lower() not in VIDEO_SUFFIXES and not (
+            is_still_output(Path(s.side_by_side)) and is_still_output(Path(s.output))):
+        raise InputError(f"--side-by-side {s.side_by_side}: give a name ending in .mp4 (or, beside a picture "
+                         "output, .jpg or .png)")
     if s.preview is not None and Path(s.preview).suffix.lower() not in (".png", ".jpg", ".jpeg"):
         raise InputError(f"--preview {s.preview}: give a name ending in .png or .jpg")
     outputs = [("refocused video", s.output), ("before | after video", s.side_by_side),

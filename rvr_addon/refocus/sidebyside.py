@@ -8,7 +8,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.video import iter_frames, probe_clip
-from ..io.writer import VideoWriter
+from ..io.writer import StillImageWriter, VideoWriter
 from .videojob import VideoWriteJob
 
 GAP_PX = 4
@@ -73,9 +73,17 @@ class SideBySideJob(VideoWriteJob):
 
     def open(self):
         """Pairs of (clip frame, rendered frame) and the writer (the clip's audio)."""
+        from ..pipeline import is_still_output
+
         size = (2 * self.clip.width + GAP_PX, self.clip.height)
-        writer = VideoWriter(self.output, fps=self.clip.fps, size=size,
-                             audio_from=self.before if self.clip.has_audio else None)
+        if is_still_output(self.output):  # a photo's before | after: one picture
+            if self.total != 1:
+                raise InputError(f"--side-by-side {self.output}: a picture holds one frame, the clip has "
+                                 f"{self.total}; give a video name (.mp4)")
+            writer = StillImageWriter(self.output)
+        else:
+            writer = VideoWriter(self.output, fps=self.clip.fps, size=size,
+                                 audio_from=self.before if self.clip.has_audio else None)
         return zip(iter_frames(self.before, stop=self.total), iter_frames(self.after, stop=self.total)), writer
 
     def frame(self, item: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -261,9 +261,10 @@ def test_a_photo_is_refocused_into_a_picture_of_its_own_type(clip, tmp_path, cap
     frame = next(iter(iter_frames(clip)))
     photo = tmp_path / "photo.png"
     cv2.imwrite(str(photo), cv2.cvtColor(cv2.resize(frame, (128, 72)), cv2.COLOR_RGB2BGR))
-    assert main(["refocus", str(photo), "--max-size", "96", *FAST]) == 0
+    assert main(["refocus", str(photo), "--max-size", "96", "--side-by-side", *FAST]) == 0
     out = cv2.imread(str(tmp_path / "photo_refocused.png"))
     assert out is not None and out.shape == (54, 96, 3)
+    assert cv2.imread(str(tmp_path / "photo_refocused_side_by_side.png")).shape == (54, 2 * 96 + 4, 3)
     assert (tmp_path / "photo_refocused.focus.json").is_file()
     assert not list(tmp_path.glob("photo_refocused*.mp4"))
     work = next((tmp_path / "rvr_cache").iterdir())
