@@ -126,7 +126,8 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
                                               for f, v in keys]}, indent=1))
 
 
-IMAGE_SUFFIXES = (".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff")
+IMAGE_SUFFIXES = STILL_SUFFIXES
+"""Picture types of image outputs (sequences and single pictures alike)."""
 
 
 def is_still_output(out: Path) -> bool:
