@@ -13,7 +13,7 @@ import numpy as np
 
 from ..io.maps import open_map_sequence
 from ..io.video import iter_frames, probe_clip
-from .sidebyside import label
+from .sidebyside import label, label_scale
 
 SHEET_WIDTH = 1500
 """Width of the contact sheet in px (three columns)."""
@@ -64,7 +64,8 @@ def sheet_row(frame: np.ndarray, disparity: np.ndarray, rendered: np.ndarray, fo
                     max(0.4, frame.shape[0] / 720), (80, 255, 80), thick, cv2.LINE_AA)
     pictures = {"input": (frame, caption), "depth": (depth, "depth (near = bright), green = in focus"),
                 "refocused": (out, "refocused")}
-    cols = [label(cv2.resize(pictures[k][0], (width, h), interpolation=cv2.INTER_AREA), pictures[k][1])
+    scale = min(label_scale(pictures[k][1], width, h) for k in order)  # one caption size across the row
+    cols = [label(cv2.resize(pictures[k][0], (width, h), interpolation=cv2.INTER_AREA), pictures[k][1], scale)
             for k in order]
     return np.concatenate(cols, axis=1)
 

@@ -15,37 +15,50 @@ GAP_PX = 4
 """Width of the dark line between the two halves (px)."""
 
 
-def label(image: np.ndarray, text: str) -> np.ndarray:
+def _text_size(text: str, scale: float) -> tuple[int, int, int]:
+    """(width, height, baseline) px of ``text`` in the captions' font at ``scale``."""
+    import cv2
+
+    (tw, th), base = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, max(1, int(scale * 2)))
+    return tw, th, base
+
+
+def label_scale(text: str, width: int, height: int) -> float:
+    """The font scale :func:`label` uses for ``text`` on a ``width`` x ``height`` picture: by the
+    picture's height, shrunk (to 0.3 at the least) where the text would not fit its width."""
+    scale = max(0.35, height / 720)
+    room = max(1, width - 2 * max(2, int(6 * scale)))
+    fit = room / max(1, _text_size(text, 1.0)[0])
+    return max(0.3, fit) if fit < scale else scale
+
+
+def label(image: np.ndarray, text: str, scale: float | None = None) -> np.ndarray:
     """``image`` (H, W, 3) uint8 RGB with ``text`` drawn in its top-left corner (white on a dark box);
-    text wider than the image (a portrait clip's narrow column) is shrunk, then wrapped at spaces."""
+    text wider than the image (a portrait clip's narrow column) is shrunk, then wrapped at spaces.
+    ``scale``: the font scale (None: :func:`label_scale`; give the smallest of a row's captions to
+    draw them alike)."""
     import cv2
 
     out = np.ascontiguousarray(image).copy()
     h, w = out.shape[:2]
-    font = cv2.FONT_HERSHEY_SIMPLEX
-    scale = max(0.35, h / 720)
-
-    def size(s: str, sc: float) -> tuple[int, int, int]:
-        (tw, th), base = cv2.getTextSize(s, font, sc, max(1, int(sc * 2)))
-        return tw, th, base
-
-    pad = max(2, int(6 * scale))
+    if scale is None:
+        scale = label_scale(text, w, h)
+    pad = max(2, int(6 * max(0.35, h / 720)))
     room = max(1, w - 2 * pad)
-    fit = room / max(1, size(text, 1.0)[0])
-    scale = max(0.3, min(scale, fit)) if fit < scale else scale
     lines: list[str] = []
     for word in text.split(" "):
-        if lines and size(lines[-1] + " " + word, scale)[0] <= room:
+        if lines and _text_size(lines[-1] + " " + word, scale)[0] <= room:
             lines[-1] += " " + word
         else:
             lines.append(word)
     thick = max(1, int(scale * 2))
-    _tw, th, base = size(text, scale)
+    _tw, th, base = _text_size(text, scale)
     step = th + base + pad
-    width = max(size(s, scale)[0] for s in lines)
+    width = max(_text_size(s, scale)[0] for s in lines)
     cv2.rectangle(out, (0, 0), (min(w, width + 2 * pad), step * len(lines) + pad), (0, 0, 0), -1)
     for i, s in enumerate(lines):
-        cv2.putText(out, s, (pad, pad + th + i * step), font, scale, (255, 255, 255), thick, cv2.LINE_AA)
+        cv2.putText(out, s, (pad, pad + th + i * step), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), thick,
+                    cv2.LINE_AA)
     return out
 
 
@@ -56,7 +69,9 @@ def side_by_side(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     if after.shape[:2] != before.shape[:2]:
         after = cv2.resize(after, (before.shape[1], before.shape[0]), interpolation=cv2.INTER_AREA)
     gap = np.full((before.shape[0], GAP_PX, 3), 16, np.uint8)
-    return np.concatenate([label(before, "before"), gap, label(after, "after (refocused)")], axis=1)
+    texts = ("before", "after (refocused)")
+    scale = min(label_scale(t, before.shape[1], before.shape[0]) for t in texts)
+    return np.concatenate([label(before, texts[0], scale), gap, label(after, texts[1], scale)], axis=1)
 
 
 class SideBySideJob(VideoWriteJob):
