@@ -69,7 +69,7 @@ HDR_TO_SDR = ("zscale=t=linear:npl=100,format=gbrpf32le,zscale=p=bt709,tonemap=t
 (SDR white at 100 nits), BT.2020 primaries to BT.709, Mobius tone mapping (linear up to 0.8 of SDR
 white, about code 231, then a roll-off that keeps the highlights' gradation instead of clipping
 them, hue kept), the BT.709 transfer, full-range RGB. An SDR clip converted to HLG and decoded this
-way: 34.7 dB PSNR against itself on the restaurant clip, 45.9 dB on smooth gradients (decoded as if
+way: 34.8 dB PSNR against itself on the restaurant clip, 45.9 dB on smooth gradients (decoded as if
 it were SDR, as before: 18.8 / 13.4 dB, dark and at half the saturation; Mobius at its default 0.3:
 33.9 / 26.4 dB, the bright half compressed)."""
 
