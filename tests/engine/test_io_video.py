@@ -370,26 +370,28 @@ def test_bundled_ffmpeg_gets_its_execute_bit_back(tmp_path):
 
 
 def _hlg_pair(tmp_path):
-    """The same 6 frames (ffmpeg's smooth colour gradients, 160x90) as an SDR BT.709 H.264 clip and
-    as an HLG (BT.2020, 10-bit HEVC) clip made from it, as a phone records HDR; skips where this
-    ffmpeg cannot make them."""
+    """The same 6 frames (smooth colour blobs, 160x90, seeded) as an SDR BT.709 H.264 clip and as an
+    HLG (BT.2020, 10-bit HEVC) clip made from it, as a phone records HDR; skips where this ffmpeg
+    cannot make them."""
     import subprocess
 
     from rvr_addon.io.video import ffmpeg_exe
+    from rvr_addon.io.writer import VideoWriter
 
+    rng = np.random.default_rng(11)
+    base = cv2.resize(rng.uniform(20, 235, (6, 10, 3)).astype(np.float32), (160, 90), interpolation=cv2.INTER_CUBIC)
     sdr, hlg = tmp_path / "sdr.mp4", tmp_path / "hlg.mp4"
+    with VideoWriter(sdr, fps=10, size=(160, 90), crf=0) as w:
+        for k in range(6):
+            w.write(np.clip(np.roll(base, 4 * k, axis=1), 0, 255).astype(np.uint8))
     tags = "setparams=color_primaries=bt709:color_trc=bt709:colorspace=bt709:range=tv"
     to_hlg = (f"{tags},zscale=t=linear:npl=100:p=bt2020:m=gbr,format=gbrpf32le,"
               "zscale=t=arib-std-b67:m=bt2020nc:r=tv,format=yuv420p10le")
-    runs = [["-f", "lavfi", "-i", "gradients=size=160x90:rate=10:seed=3", "-frames:v", "6",
-             "-vf", f"format=yuv420p,{tags}", "-c:v", "libx264", "-crf", "0", "-colorspace", "bt709",
-             "-color_primaries", "bt709", "-color_trc", "bt709", str(sdr)],
-            ["-i", str(sdr), "-vf", to_hlg, "-c:v", "libx265", "-x265-params", "log-level=error:lossless=1",
-             "-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc", str(hlg)]]
-    for args in runs:
-        out = subprocess.run([ffmpeg_exe(), "-y", "-hide_banner", "-v", "error", *args], capture_output=True)
-        if out.returncode != 0:
-            pytest.skip(f"this ffmpeg cannot make the HLG test clip: {out.stderr.decode()[-200:]}")
+    out = subprocess.run([ffmpeg_exe(), "-y", "-hide_banner", "-v", "error", "-i", str(sdr), "-vf", to_hlg,
+                          "-c:v", "libx265", "-x265-params", "log-level=error:lossless=1", "-color_primaries", "bt2020",
+                          "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc", str(hlg)], capture_output=True)
+    if out.returncode != 0:
+        pytest.skip(f"this ffmpeg cannot make the HLG test clip: {out.stderr.decode()[-200:]}")
     return sdr, hlg
 
 
@@ -414,7 +416,7 @@ def test_an_hdr_phone_clip_is_tone_mapped_to_the_sdr_the_engine_works_in(tmp_pat
 
     monkeypatch.setattr(V, "_hdr_filter", lambda video: None)  # what the decoder did before
     raw = np.stack(list(iter_frames(hlg))).astype(np.float64)
-    assert psnr(mapped) > 30.0 and psnr(raw) < 20.0, (psnr(mapped), psnr(raw))  # 36-46 / 12-13 dB here
+    assert psnr(mapped) > 30.0 and psnr(raw) < 20.0, (psnr(mapped), psnr(raw))  # 32.6 / 14.7 dB here
     assert abs(mapped.mean() - ref.mean()) < 3.0 < 10.0 < abs(raw.mean() - ref.mean())
 
 
