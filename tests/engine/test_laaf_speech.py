@@ -79,3 +79,29 @@ def test_voice_activity_on_a_real_clip_finds_the_sentence():
     assert abs(start - 0.7) <= 0.25 and abs(end - 2.4) <= 0.3  # speech about 0.7-2.4 s
     voiced_s = track.voiced.sum() / fps
     assert 1.0 <= voiced_s <= 2.0
+
+
+def test_the_speech_cues_are_the_same_seconds_at_any_frame_rate():
+    """A frame's envelope is the RMS of at least 40 ms centred on it (at 25 fps its own span, as
+    before; at 50 fps not its 20 ms alone, whose noise weakened the speaker's 1 s correlation), and
+    the chain's change costs count frames at 25 fps: a 50 fps clip pays twice the frames, so a
+    change of speaker takes the same seconds of evidence."""
+    from rvr_addon.laaf.audio import ENVELOPE_MIN_S, SAMPLE_RATE
+    from rvr_addon.laaf.detectors.speech import COST_REFERENCE_FPS
+
+    rng = np.random.default_rng(4)
+    samples = (rng.standard_normal(SAMPLE_RATE * 2) * np.repeat(rng.uniform(0.01, 0.5, 100), SAMPLE_RATE // 50)
+               ).astype(np.float32)
+    at25, at50 = analyse_audio(samples, 25.0, 50), analyse_audio(samples, 50.0, 100)
+    for k in (3, 20, 40):  # 25 fps: the frame's own 40 ms, exactly as before
+        seg = samples[k * 640:(k + 1) * 640]
+        assert at25.envelope[k] == pytest.approx(float(np.sqrt(np.mean(seg * seg))), rel=1e-5)
+    for k in (7, 40, 81):  # 50 fps: 40 ms centred on the frame's 20 ms
+        c = int((k + 0.5) / 50 * SAMPLE_RATE)
+        seg = samples[c - int(ENVELOPE_MIN_S / 2 * SAMPLE_RATE):c + int(ENVELOPE_MIN_S / 2 * SAMPLE_RATE)]
+        assert at50.envelope[k] == pytest.approx(float(np.sqrt(np.mean(seg * seg))), rel=1e-5)
+    assert COST_REFERENCE_FPS == 25.0
+    a = SpeechDetector(None, 25.0, 10, audio=at25, sync=False, mouth="motion")
+    b = SpeechDetector(None, 50.0, 10, audio=at50, sync=False, mouth="motion")
+    assert (b.switch_cost, b.pause_cost) == pytest.approx((2 * a.switch_cost, 2 * a.pause_cost))
+    assert (a.switch_cost, a.pause_cost) == pytest.approx((8.0, 2.5))  # the defaults, at 25 fps unchanged
