@@ -105,3 +105,6 @@ def test_the_speech_cues_are_the_same_seconds_at_any_frame_rate():
     b = SpeechDetector(None, 50.0, 10, audio=at50, sync=False, mouth="motion")
     assert (b.switch_cost, b.pause_cost) == pytest.approx((2 * a.switch_cost, 2 * a.pause_cost))
     assert (a.switch_cost, a.pause_cost) == pytest.approx((8.0, 2.5))  # the defaults, at 25 fps unchanged
+    from rvr_addon.laaf.detectors.speech import motion_smooth_frames
+
+    assert [motion_smooth_frames(f) for f in (24, 25, 30, 50, 60, 0)] == [3, 3, 5, 7, 7, 3]

@@ -71,7 +71,7 @@ difference gives motion energy. For each face track of the face detector two mou
 recorded: the motion energy of its mouth region (lower middle of the box) minus that of its
 upper face (head motion), and the mouth's darkness (upper-face minus mouth intensity: an open
 mouth shows its dark inside). At frame t a face's score is the best Pearson correlation (of
-3-frame moving averages) of motion with the envelope or with its change, or of darkness with
+moving averages over MOTION_SMOOTH_S, 3 frames at 25 fps) of motion with the envelope or with its change, or of darkness with
 the envelope, taken over a window of ``window_s``
 (centred on t in look-ahead mode, ending at t in causal mode) clipped to the current voiced
 segment (+-2 frames), so two turns are never mixed. The heat map is the speaking face's box
@@ -118,6 +118,16 @@ def _pearson(x: np.ndarray, y: np.ndarray) -> float:
     y = y - y.mean()
     den = float(np.sqrt((x * x).sum() * (y * y).sum()))
     return float((x * y).sum() / den) if den > 1e-12 else 0.0
+
+
+MOTION_SMOOTH_S = 0.12
+"""Span (s) of the moving average of the motion cues and the envelope before they are correlated:
+3 frames at 25 fps (as before), 5 at 30 fps, 7 at 50-60 fps (:func:`motion_smooth_frames`)."""
+
+
+def motion_smooth_frames(fps: float) -> int:
+    """The odd number of frames (>= 3) :data:`MOTION_SMOOTH_S` spans at ``fps``."""
+    return max(3, int(round(MOTION_SMOOTH_S * float(fps))) | 1) if fps and fps > 0 else 3
 
 
 def _smooth(x: np.ndarray, width: int = 3) -> np.ndarray:
@@ -188,7 +198,7 @@ class SpeechDetector(FocusDetector):
     media: the clip file whose audio is decoded (a video), or None (no audio). audio: an
     AudioTrack given directly (tests), overriding media. faces: the FaceDetector whose tracks
     are scored (shared with H_face). causal: trailing window, no look-ahead.
-    min_corr: correlation (of 3-frame moving averages) at which the motion cues of a face the
+    min_corr: correlation (of moving averages over MOTION_SMOOTH_S) at which the motion cues of a face the
     mesh does not read score like ``none_score`` (below: less than nobody).
     mouth: 'auto' (face mesh where mediapipe imports, else motion), 'mesh' (required), 'motion'.
     mouth_window_s, mouth_min_activity, mouth_rel_activity (0: off), max_lag_s (0: no lag), lag_mode
@@ -734,7 +744,7 @@ class SpeechDetector(FocusDetector):
         """The motion cues' correlation of a track over ``frames`` (``env``: their envelope; the
         cues shifted by the track's lag, :meth:`track_lag`):
         the best of mouth motion with the envelope or its change and darkness with the
-        envelope (3-frame moving averages); None with fewer than 3 readings."""
+        envelope (moving averages over :data:`MOTION_SMOOTH_S`); None with fewer than 3 readings."""
         series = self._mouth.get(tid, {})
         lag = self.track_lag(tid) if tid is not None else 0  # the same feed: the mesh's lag
         ks = [i for i, k in enumerate(frames) if k + lag in series]
@@ -743,9 +753,10 @@ class SpeechDetector(FocusDetector):
         feats = np.array([series[frames[i] + lag] for i in ks])
         # motion ~ |d opening/dt| follows the envelope's changes; darkness ~ opening follows it
         d_env = np.abs(np.diff(env, prepend=env[0]))
-        return max(_pearson(_smooth(feats[:, 0]), _smooth(env[ks])),
-                   _pearson(_smooth(feats[:, 0]), _smooth(d_env[ks])),
-                   _pearson(_smooth(feats[:, 1]), _smooth(env[ks])))
+        w = motion_smooth_frames(self.fps)
+        return max(_pearson(_smooth(feats[:, 0], w), _smooth(env[ks], w)),
+                   _pearson(_smooth(feats[:, 0], w), _smooth(d_env[ks], w)),
+                   _pearson(_smooth(feats[:, 1], w), _smooth(env[ks], w)))
 
     def _mouth_score(self, tid: str | None, win: tuple[int, int]) -> tuple[float, float] | None:
         """(correlation of the track's mouth opening, shifted by its lag, with the envelope over
