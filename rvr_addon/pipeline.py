@@ -126,14 +126,20 @@ def prepare_demo_inputs(directory: Path, pull_frames: int | None = None) -> None
                                               for f, v in keys]}, indent=1))
 
 
-IMAGE_SUFFIXES = STILL_SUFFIXES
-"""Picture types of image outputs (sequences and single pictures alike)."""
-
-
 def is_still_output(out: Path) -> bool:
     """Whether an output path is one picture (``photo_refocused.jpg``: an image type, no frame
     number field), as opposed to a video, a folder or a numbered sequence."""
+    out = Path(out)
     return "%" not in out.name and out.suffix.lower() in STILL_SUFFIXES
+
+
+def refuse_picture_of_many(out: Path, frames: int, option: str = "output") -> None:
+    """InputError, before any work, when ``out`` is one picture (:func:`is_still_output`) but
+    ``frames`` frames would go there; ``option`` names the setting (``-o``, ``--side-by-side``)."""
+    if is_still_output(out) and frames != 1:
+        p = Path(out)
+        raise InputError(f"{option} {out}: a picture holds one frame, this range has {max(0, frames)}: give a video "
+                         f"(.mp4), a numbered sequence ({p.stem}_%05d{p.suffix}), or one frame (--start N --stop N+1)")
 
 
 def sequence_writer(out: Path, start: int = 1) -> ImageSequenceWriter:
@@ -142,7 +148,7 @@ def sequence_writer(out: Path, start: int = 1) -> ImageSequenceWriter:
     The folder is replaced as a whole when the render completes, so it must be the render's
     own: a folder holding anything but frames of this pattern is refused (nothing is lost).
     """
-    if "%" in out.name or out.suffix.lower() in IMAGE_SUFFIXES:
+    if "%" in out.name or out.suffix.lower() in STILL_SUFFIXES:
         directory, pattern = out.parent, out.name
         if "%" not in pattern:
             raise InputError(f"image output {out} needs a frame number field, e.g. {out.stem}_%05d{out.suffix}")
@@ -229,11 +235,8 @@ class RenderJob:
                              f"({self.clip.frame_count} frames)")
         self.start, self.stop = start, stop
         self.total = stop - start if self.frame_list is None else len(self.frame_list)
-        stills = [out for out in s.outputs if is_still_output(Path(out))]
-        if stills and self.total != 1:
-            raise InputError(f"output {stills[0]}: a picture holds one frame, this render has {self.total}: give a "
-                             f"video (.mp4), a numbered sequence ({Path(stills[0]).stem}_%05d{Path(stills[0]).suffix}), "
-                             "or one frame (--start N --stop N+1)")
+        for out in s.outputs:
+            refuse_picture_of_many(out, self.total)
         self.depth = open_map_sequence(s.depth, kind="disparity", scale=s.depth_scale, offset=s.depth_offset)
         if len(self.depth) > 1 and len(self.depth) < stop:
             raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "

@@ -92,10 +92,9 @@ def default_work_folder(source: Path, output: Path) -> Path:
 def is_picture(path: Path) -> bool:
     """Whether ``path`` is one picture file (a photo: .jpg, .png, .tif, .exr), not a video, an
     image folder or a frame pattern."""
-    from ..io.writer import STILL_SUFFIXES
+    from ..pipeline import is_still_output
 
-    path = Path(path)
-    return path.suffix.lower() in STILL_SUFFIXES and "%" not in path.name and path.is_file()
+    return is_still_output(path) and Path(path).is_file()
 
 
 def default_output(source: Path) -> Path:
@@ -199,13 +198,10 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     work = Path(s.cache) if s.cache is not None else default_work_folder(Path(s.input), Path(s.output))
     proxy = needs_proxy(source, s.max_size, s.start, s.stop)
     picture = is_picture(Path(s.input)) and source.frame_count == 1
-    from ..pipeline import is_still_output
+    from ..pipeline import refuse_picture_of_many
 
-    if is_still_output(Path(s.output)):
-        stop = source.frame_count if s.stop is None else min(s.stop, source.frame_count)
-        if stop - s.start != 1:
-            raise InputError(f"-o {s.output}: a picture holds one frame, but '{s.input}' gives {max(0, stop - s.start)} "
-                             f"here; give a video name (.mp4), or one frame with --start N --stop N+1")
+    refuse_picture_of_many(s.output, (source.frame_count if s.stop is None else min(s.stop, source.frame_count))
+                           - s.start, "-o")
     run = RefocusRun(settings=s, work=work, clip=Path(s.input), cache=work / "cache")
     stages: list[Stage] = []
     factor = 1.0

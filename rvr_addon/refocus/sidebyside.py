@@ -23,11 +23,17 @@ def _text_size(text: str, scale: float) -> tuple[int, int, int]:
     return tw, th, base
 
 
+def _height_scale_and_pad(height: int) -> tuple[float, int]:
+    """The captions' font scale by a picture's height, and their padding (px)."""
+    scale = max(0.35, height / 720)
+    return scale, max(2, int(6 * scale))
+
+
 def label_scale(text: str, width: int, height: int) -> float:
     """The font scale :func:`label` uses for ``text`` on a ``width`` x ``height`` picture: by the
     picture's height, shrunk (to 0.3 at the least) where the text would not fit its width."""
-    scale = max(0.35, height / 720)
-    room = max(1, width - 2 * max(2, int(6 * scale)))
+    scale, pad = _height_scale_and_pad(height)
+    room = max(1, width - 2 * pad)
     fit = room / max(1, _text_size(text, 1.0)[0])
     return max(0.3, fit) if fit < scale else scale
 
@@ -43,7 +49,7 @@ def label(image: np.ndarray, text: str, scale: float | None = None) -> np.ndarra
     h, w = out.shape[:2]
     if scale is None:
         scale = label_scale(text, w, h)
-    pad = max(2, int(6 * max(0.35, h / 720)))
+    pad = _height_scale_and_pad(h)[1]
     room = max(1, w - 2 * pad)
     lines: list[str] = []
     for word in text.split(" "):
@@ -88,13 +94,11 @@ class SideBySideJob(VideoWriteJob):
 
     def open(self):
         """Pairs of (clip frame, rendered frame) and the writer (the clip's audio)."""
-        from ..pipeline import is_still_output
+        from ..pipeline import is_still_output, refuse_picture_of_many
 
         size = (2 * self.clip.width + GAP_PX, self.clip.height)
         if is_still_output(self.output):  # a photo's before | after: one picture
-            if self.total != 1:
-                raise InputError(f"--side-by-side {self.output}: a picture holds one frame, the clip has "
-                                 f"{self.total}; give a video name (.mp4)")
+            refuse_picture_of_many(self.output, self.total, "--side-by-side")
             writer = StillImageWriter(self.output)
         else:
             writer = VideoWriter(self.output, fps=self.clip.fps, size=size,
