@@ -66,8 +66,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--window", type=float, help="look-ahead in seconds (default: the strip's)")
     p.add_argument("--target", type=_target, action="append", default=[], metavar="FRAME,X,Y[,W,H]",
                    help="add a manual focus target first (scene frame, clip px); repeatable")
-    p.add_argument("--pull-frames", type=int, help="default pull length in frames")
-    p.add_argument("--lead-frames", type=int, help="default lead in frames")
+    p.add_argument("--pull-frames", type=int, help="default pull length in frames (0: 0.4 s at the clip's frame rate)")
+    p.add_argument("--lead-frames", type=int, help="default lead in frames (-1: 0.2 s at the clip's frame rate)")
 
     p = sub.add_parser("render", help="render the strip with its focus F-curves; adds the result strip")
     common(p)

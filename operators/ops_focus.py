@@ -162,9 +162,10 @@ def plan_focus(scene, strip: "Strip", preset: str | None, window_s: float) -> Fo
     if preset is None and not kept:
         raise InputError(f"strip '{strip.name}' has no focus target in its visible frames: add one (Add Focus "
                          "Target) or run Auto Focus")
-    pull = PullSettings(pull_frames=int(rvr.pull_frames), lead_frames=int(rvr.lead_frames),
-                        profile=rvr.pull_profile, hold_frames=int(rvr.hold_frames),
-                        min_pull_frames=min(2, int(rvr.pull_frames)))
+    # 0 / -1: the engine's defaults in seconds, as frames at the clip's rate (laaf.timebase)
+    pull = PullSettings(pull_frames=int(rvr.pull_frames) or None,
+                        lead_frames=None if rvr.lead_frames < 0 else int(rvr.lead_frames),
+                        profile=rvr.pull_profile, hold_frames=None if rvr.hold_frames < 0 else int(rvr.hold_frames))
     aperture = float(rvr.aperture)
     settings = AutofocusSettings(
         input=source.path, cache=cache, depth=depth, preset=preset, nfts=[engine_nft(i) for i in kept],

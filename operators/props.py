@@ -181,14 +181,17 @@ class RVR_PG_strip(bpy.types.PropertyGroup):
     # -- focus targets and pulls
     nfts: CollectionProperty(type=RVR_PG_nft, name="Focus Targets")
     nft_index: IntProperty(name="Active Target", default=0, min=0)
-    pull_frames: IntProperty(name="Pull", description="Default length of a focus pull in frames", default=10, min=1,
-                             soft_max=96)
-    lead_frames: IntProperty(name="Lead", description="By default a pull lands this many frames before its target",
-                             default=5, min=0, soft_max=96)
+    pull_frames: IntProperty(name="Pull", description="Default length of a focus pull in frames (0 = 0.4 s at the "
+                                                      "clip's frame rate: 10 frames at 25 fps, 24 at 60)",
+                             default=0, min=0, soft_max=96)
+    lead_frames: IntProperty(name="Lead", description="By default a pull lands this many frames before its target "
+                                                      "(-1 = 0.2 s at the clip's frame rate: 5 frames at 25 fps)",
+                             default=-1, min=-1, soft_max=96)
     pull_profile: EnumProperty(name="Profile", items=PULL_PROFILES, default="linear",
                                description="How the focus moves during a pull")
-    hold_frames: IntProperty(name="Hold", description="After a subject is lost, hold its focus this long before "
-                                                      "releasing to the next target", default=12, min=0)
+    hold_frames: IntProperty(name="Hold", description="After a subject is lost, hold its focus this many frames "
+                                                      "before releasing to the next target (-1 = 0.48 s at the "
+                                                      "clip's frame rate: 12 frames at 25 fps)", default=-1, min=-1)
     autofocus_preset: EnumProperty(name="Preset", items=AUTOFOCUS_PRESETS, default="auto",
                                    description="What Auto Focus looks for")
     focus_calm: FloatProperty(name="Calm", default=DEFAULT_CALM, min=0.0, max=1.0, subtype="FACTOR",

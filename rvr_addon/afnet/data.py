@@ -187,7 +187,9 @@ def load_harness_clip(folder: Path, config: AFNetConfig) -> ClipData:
             pt = rec.get("point")
             if pt is not None and rec.get("face_in_frame", True):
                 points[k] = (float(pt[0]) * sx, float(pt[1]) * sy)
-    fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
+    from ..laaf.evaluate import manifest_fps
+
+    fps = manifest_fps(manifest)
     audio = sound_variants(folder / "input.mp4", fps, n, folder.name) if config.audio else None
     return ClipData(folder.name, "harness", frames, boxes, points, nfts, fps, audio=audio)
 

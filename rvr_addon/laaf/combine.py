@@ -175,14 +175,19 @@ class StepDetector:
     """
 
     def __init__(self, min_step: float = 0.5, r: int = 3, min_gap: int = 6, sigma_r: float = 0.4,
-                 causal: bool = False, min_support: int = 2) -> None:
+                 causal: bool = False, min_support: int = 2, filter_radius: int = 2, sigma_t: float = 1.5) -> None:
+        """r: frames each side a step's two levels are measured over; min_gap: frames between two
+        steps; sigma_r: the bilateral filter's range sigma (disparity units); filter_radius,
+        sigma_t: its window and time sigma (frames); min_support: frames the new level must be
+        measured on."""
         self.min_step = min_step
         self.r = r
         self.min_gap = min_gap
         self.sigma_r = sigma_r
         self.causal = causal
         self.min_support = min_support
-        self.filter_radius = 2
+        self.filter_radius = int(filter_radius)
+        self.sigma_t = float(sigma_t)
         self.delay = (r - 1) if causal else (2 * r - 1 + self.filter_radius)
         self.raw: list[float] = []
         self.held: list[float] = []
@@ -199,7 +204,7 @@ class StepDetector:
         ok = np.isfinite(seg)
         if not np.isfinite(v[i]) or not ok.any():
             return float("nan")
-        wgt = np.exp(-0.5 * (dt[ok] / 1.5) ** 2 - 0.5 * ((seg[ok] - v[i]) / self.sigma_r) ** 2)
+        wgt = np.exp(-0.5 * (dt[ok] / self.sigma_t) ** 2 - 0.5 * ((seg[ok] - v[i]) / self.sigma_r) ** 2)
         return float((wgt * seg[ok]).sum() / wgt.sum())
 
     def push(self, level: float) -> list[Step]:

@@ -12,12 +12,15 @@ def add_pull_args(p: argparse.ArgumentParser) -> None:
     """``--pull-frames --lead-frames --profile --hold-frames`` (rvr autofocus, eval-focus, batch)."""
     from .presets import PROFILES
 
-    p.add_argument("--pull-frames", type=int, default=10, help="length of a focus pull in frames (default 10)")
-    p.add_argument("--lead-frames", type=int, default=5,
-                   help="the pull lands this many frames before the NFT (default 5)")
+    p.add_argument("--pull-frames", type=int,
+                   help="length of a focus pull in frames (default 0.4 s at the clip's frame rate: 10 at 25 fps, "
+                        "12 at 30, 24 at 60)")
+    p.add_argument("--lead-frames", type=int,
+                   help="the pull lands this many frames before the NFT (default 0.2 s: 5 at 25 fps)")
     p.add_argument("--profile", choices=PROFILES, default="linear", help="pull profile (default linear, as the paper)")
-    p.add_argument("--hold-frames", type=int, default=12,
-                   help="after a subject is lost, hold its focus this long before releasing (default 12)")
+    p.add_argument("--hold-frames", type=int,
+                   help="after a subject is lost, hold its focus this long before releasing (default 0.48 s: 12 "
+                        "at 25 fps)")
 
 
 def add_afnet_args(p: argparse.ArgumentParser, region: bool = True) -> None:
@@ -74,7 +77,7 @@ def pull_settings(args: argparse.Namespace):
     from .puller import PullSettings
 
     s = PullSettings(pull_frames=args.pull_frames, lead_frames=args.lead_frames, profile=args.profile,
-                     hold_frames=args.hold_frames, min_pull_frames=min(2, args.pull_frames))
+                     hold_frames=args.hold_frames)
     try:
         s.check()
     except ValueError as ex:

@@ -115,6 +115,11 @@ def harness_clips(dataset: str | Path) -> list[Path]:
     return clips
 
 
+def manifest_fps(manifest: dict) -> float:
+    """A harness clip's frame rate (frames/s; 24 when its manifest does not say)."""
+    return float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
+
+
 def ground_truth(manifest: dict, settings: PullSettings) -> GroundTruth:
     """The ground-truth focus track and NFTs of a clip (module docstring)."""
     n = int(manifest.get("config", {}).get("frames") or manifest["frames"])
@@ -137,7 +142,7 @@ def ground_truth(manifest: dict, settings: PullSettings) -> GroundTruth:
             nfts.pop()
         targets.append(PullTarget(t, level(current)))
         nfts.append((t, current))
-    focus = compose_track(targets, n, settings).focus
+    focus = compose_track(targets, n, settings, fps=manifest_fps(manifest)).focus
     return GroundTruth(focus, nfts, manifest.get("events", []))
 
 
@@ -167,7 +172,7 @@ def score_run(folder: Path, manifest: dict, preset: str, causal: bool, pull: Pul
               window_s: float = 2.0, max_dt: int | None = None, afnet_weights: Path | None = None,
               afnet_threshold: float | None = None) -> tuple[ClipScore, AutofocusResult]:
     """Run LAAF on one clip (ground-truth disparity) and score it."""
-    fps = float(manifest.get("config", {}).get("fps") or manifest.get("fps") or 24)
+    fps = manifest_fps(manifest)
     base, overrides = VARIANTS.get(preset, (preset, {}))
     settings = AutofocusSettings(input=clip_input(folder), depth=folder / "gt" / "disparity", preset=base,
                                  window_s=window_s, causal=causal, pull=pull, fps=fps, afnet_weights=afnet_weights,
@@ -279,10 +284,15 @@ def _fmt(v) -> str:
     return "-" if v is None else f"{v:.2f}"
 
 
+def _frames_or_default(frames: int | None, default: str) -> str:
+    return default if frames is None else f"{frames} frames"
+
+
 def _markdown(scores: list[ClipScore], summary: dict, presets: list[str], pull: PullSettings, window_s: float) -> str:
     lines = ["# LAAF evaluation (`rvr eval-focus`)", "",
-             f"Ground-truth disparity; look-ahead window {window_s:g} s vs causal; pull {pull.pull_frames} frames "
-             f"({pull.profile}), landing {pull.lead_frames} frames before the NFT. Definitions: "
+             f"Ground-truth disparity; look-ahead window {window_s:g} s vs causal; pull "
+             f"{_frames_or_default(pull.pull_frames, '0.4 s')} ({pull.profile}), landing "
+             f"{_frames_or_default(pull.lead_frames, '0.2 s')} before the NFT. Definitions: "
              "`rvr_addon/laaf/evaluate.py` (mean |dd| over all frames in disparity units; mean |dt| over "
              "ground-truth NFTs in frames, misses counted at 1 s).", "",
              "| clip | script | preset | GT NFTs | look-ahead mean abs dt | look-ahead mean abs dd | "

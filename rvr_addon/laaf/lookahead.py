@@ -68,6 +68,7 @@ from .focus_reading import read_focus
 from .keyframes import Key, keyframes
 from .nft import NFT, Box, load_nfts, validate_nfts
 from .puller import ComposedTrack, PullSettings, PullTarget, compose_track, shot_bounds
+from .timebase import frames_at
 from .tracking import SubjectTracker
 
 log = logging.getLogger(__name__)
@@ -199,6 +200,7 @@ class AutofocusJob:
         self.depth = self.setup.depth
         self.scale, self.size = self.setup.scale, self.setup.size
         self.window = 0 if s.causal else int(round(s.window_s * self.fps))
+        self.pull = s.pull.at_fps(self.fps)  # the pull's defaults in frames of this clip (timebase)
         self.causal = s.causal or self.window == 0
         manual = list(s.nfts or [])
         if s.targets is not None:
@@ -219,15 +221,19 @@ class AutofocusJob:
         self.learned = self.detectors.get("afnet")  # preset 'learned': AF-Net proposes the NFTs itself
         self.detector_lag = max([d.lookahead_frames for n, d in self.detectors.items()
                                  if n in self._combo] or [0])
-        self.step_detector = StepDetector(min_step=s.min_step, r=3, min_gap=max(4, s.pull.pull_frames // 2),
-                                          causal=self.causal)
+        # the step detector's windows: frames at 25 fps, the same seconds at the clip's rate (timebase)
+        self.step_detector = StepDetector(min_step=s.min_step, r=frames_at(3, self.fps),
+                                          min_gap=max(frames_at(4, self.fps), self.pull.pull_frames // 2),
+                                          causal=self.causal, min_support=frames_at(2, self.fps),
+                                          filter_radius=frames_at(2, self.fps),
+                                          sigma_t=0.75 * frames_at(2, self.fps))
         # look-ahead: the persistence of a new level is checked in frames the window still sees before
         # the pull must start; causal: not at all (waiting for it would make every pull later still)
         spare = (0 if self.causal else
-                 self.window - self.detector_lag - self.step_detector.delay - s.pull.lead_frames - s.pull.pull_frames)
+                 self.window - self.detector_lag - self.step_detector.delay - self.pull.lead_frames - self.pull.pull_frames)
         self.calm = calm_settings(s.calm, self.fps, s.aperture, max_persist=spare)
         self.step_detector.min_step = s.min_step * self.calm.step_factor  # hysteresis
-        keep = (self.detector_lag + self.step_detector.delay + 3 + s.pull.lead_frames + s.pull.pull_frames + 4
+        keep = (self.detector_lag + self.step_detector.delay + 3 + self.pull.lead_frames + self.pull.pull_frames + 4
                 + self.calm.persist_frames)
         self._pending: list = []  # (Step, frame its decision is due): steps waiting for persistence / the hold
         if s.cuts is not None:
@@ -483,7 +489,7 @@ class AutofocusJob:
         if self._near_cut(e):
             log.debug("step at frame %d is a shot cut; the cut's own target covers it", e)
             return
-        p = self.settings.pull
+        p = self.pull
         due = (e if st.region_frame is None else max(e, st.region_frame)) + self.calm.persist_frames
         last = self._last_target_t(e)
         if last is not None and self.calm.hold_frames and e - p.lead_frames - p.pull_frames < last + self.calm.hold_frames \
@@ -524,7 +530,7 @@ class AutofocusJob:
             log.debug("step at frame %d: focus is on its speaker (%s) already; dropped", e, speaker)
             return
         search = None if st.region_frame is None else range(st.region_frame, st.region_frame + 1)
-        p = self.settings.pull
+        p = self.pull
         # the shot's first target: a cut's, or the clip's initial focus (frame 0 is a shot's start too),
         # replaced by the subject found just after; a motion or saliency subject may be corrected again
         # within the hold, a speaker's (a turn that happened) is final: the next speaker is a pull
@@ -636,7 +642,7 @@ class AutofocusJob:
             log.debug("step at frame %d has no region near its new level; skipped", e)
             return False
         known_at = max(0, ingest - self.window)
-        if any(abs(n.t - e) < self.settings.pull.pull_frames for n in self.manual):
+        if any(abs(n.t - e) < self.pull.pull_frames for n in self.manual):
             return False
         outputs_tid = None
         speech = self.detectors.get("speech")
@@ -671,7 +677,7 @@ class AutofocusJob:
         t, q, p, region = cand
         if t >= self.n or any(n.t == t for n in self.manual) or any(tg.nft.t == t for tg in self.targets):
             return
-        if any(abs(n.t - t) < self.settings.pull.pull_frames for n in self.manual):
+        if any(abs(n.t - t) < self.pull.pull_frames for n in self.manual):
             return  # the user wins
         source, subject, detail = "afnet", None, {"p": round(float(p), 4)}
         spoken = self._speaker_region(t)
@@ -735,7 +741,7 @@ class AutofocusJob:
         tg.boxes[t_box] = (tuple(box), True)
         tg.level[t_box] = self._read(af, box, mask)
         # backwards over the frames the pull to this target may use
-        p = self.settings.pull
+        p = self.pull
         back = SubjectTracker()
         back.start(af.rgb, box, t_box)
         first, nxt = shot_bounds(nft.t, self.cuts)
@@ -787,7 +793,7 @@ class AutofocusJob:
         if state.status != "tracked":
             tg.events.append({"frame": af.t, "status": state.status, "score": round(state.score, 3),
                               "direction": "forward"})
-        if tg.lost_from is None and tg.tracker.frames_lost >= self.settings.pull.hold_frames:
+        if tg.lost_from is None and tg.tracker.frames_lost >= self.pull.hold_frames:
             tg.lost_from = af.t - tg.tracker.frames_lost + 1
             log.info("target of frame %d lost from frame %d (%s): holding its focus, then releasing",
                      tg.nft.t, tg.lost_from, state.status)
@@ -818,7 +824,7 @@ class AutofocusJob:
             pts.append(PullTarget(tg.nft.t, level, known_at=tg.nft.known_at, lost_from=tg.lost_from,
                                   aperture=tg.nft.aperture, pull_frames=tg.nft.pull_frames,
                                   lead_frames=tg.nft.lead_frames, at_cut=bool(tg.nft.detail.get("cut"))))
-        composed = compose_track(pts, self.n, s.pull, aperture=s.aperture, cuts=self.cuts)
+        composed = compose_track(pts, self.n, self.pull, aperture=s.aperture, cuts=self.cuts)
         keys = keyframes(composed.focus, composed.aperture, tol=s.keyframe_tol)
         tracking = []
         for i, tg in enumerate(self.targets):
@@ -839,8 +845,8 @@ class AutofocusJob:
         seconds = time.perf_counter() - self._t0
         settings = {"preset": s.preset, "preset_used": self.preset_used if self._combo else None,
                     "fallback": fallback or None, "window_s": 0.0 if self.causal else s.window_s,
-                    "window_frames": self.window, "causal": self.causal, "pull_frames": s.pull.pull_frames,
-                    "lead_frames": s.pull.lead_frames, "profile": s.pull.profile, "hold_frames": s.pull.hold_frames,
+                    "window_frames": self.window, "causal": self.causal, "pull_frames": self.pull.pull_frames,
+                    "lead_frames": self.pull.lead_frames, "profile": self.pull.profile, "hold_frames": self.pull.hold_frames,
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
                     "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
                     "auto": self.auto,

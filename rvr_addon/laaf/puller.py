@@ -6,7 +6,9 @@ previous target) and ends at ``e = t - lead`` (focus exactly on the new target),
 has settled before the action. Between pulls the focus follows the tracked target's disparity.
 Profiles: ``linear`` (the paper), ``ease_in_out_cubic``, ``ease_in_out_sine`` (a focus
 puller's slow start and slow landing), ``critically_damped`` (a follow-focus motor: fast start,
-settling without overshoot).
+settling without overshoot). The defaults are durations (0.4 s pull, 0.2 s lead, 0.48 s hold:
+DESIGN's 10, 5 and 12 frames at 25 fps), turned into frames at the clip's rate
+(:meth:`PullSettings.at_fps`, :mod:`.timebase`); frame counts a user gives stay frames.
 
 Composition: f_0 = L_0 (the first target's level) and f_i = (1 - w_i) f_{i-1} + w_i L_i with
 w_i the pull weight of target i (0 before its pull, 1 after): overlapping pulls blend instead
@@ -59,30 +61,54 @@ def pull_weight(u, profile: str = "linear") -> np.ndarray:
     raise ValueError(f"pull profile {profile!r} is not known; use one of {', '.join(PROFILES)}")
 
 
+DEFAULT_PULL_FRAMES = 10
+"""A pull's length by default, frames at :data:`.timebase.REFERENCE_FPS` (DESIGN.md; 0.4 s)."""
+DEFAULT_LEAD_FRAMES = 5
+"""A pull lands this many frames at the reference rate before its NFT by default (0.2 s)."""
+DEFAULT_HOLD_FRAMES = 12
+"""A lost subject's focus is held this many frames at the reference rate by default (0.48 s)."""
+
+
 @dataclass
 class PullSettings:
-    """pull_frames: length of a pull (frames, paper default 10, ~0.4 s at 24 fps).
-    lead_frames: the pull lands this many frames before the NFT. profile: see PROFILES.
-    hold_frames: after a target is lost, hold its focus this long before releasing to the next.
-    min_pull_frames: shortest pull when NFTs crowd together."""
+    """pull_frames: length of a pull (frames; None: 0.4 s at the clip's rate, the paper's and
+    DESIGN's 10 frames at 25 fps). lead_frames: the pull lands this many frames before the NFT
+    (None: 0.2 s, 5 frames at 25 fps). profile: see PROFILES. hold_frames: after a target is
+    lost, hold its focus this long before releasing to the next (None: 0.48 s, 12 frames at
+    25 fps). min_pull_frames: shortest pull when NFTs crowd together (None: 2, or the pull if
+    shorter). A number given is frames of the clip as given; :meth:`at_fps` fills the rest."""
 
-    pull_frames: int = 10
-    lead_frames: int = 5
+    pull_frames: int | None = None
+    lead_frames: int | None = None
     profile: str = "linear"
-    hold_frames: int = 12
-    min_pull_frames: int = 2
+    hold_frames: int | None = None
+    min_pull_frames: int | None = None
+
+    def at_fps(self, fps: float | None) -> "PullSettings":
+        """These settings with every default turned into frames at ``fps`` (frames/s; None:
+        the reference rate); numbers given stay as they are."""
+        from .timebase import frames_at
+
+        pull = frames_at(DEFAULT_PULL_FRAMES, fps) if self.pull_frames is None else self.pull_frames
+        return PullSettings(
+            pull_frames=pull,
+            lead_frames=frames_at(DEFAULT_LEAD_FRAMES, fps, 0) if self.lead_frames is None else self.lead_frames,
+            profile=self.profile,
+            hold_frames=frames_at(DEFAULT_HOLD_FRAMES, fps, 0) if self.hold_frames is None else self.hold_frames,
+            min_pull_frames=min(2, max(pull, 1)) if self.min_pull_frames is None else self.min_pull_frames)
 
     def check(self) -> None:
-        """Raise ValueError naming the setting that is out of range."""
-        if self.pull_frames < 1:
-            raise ValueError(f"pull_frames={self.pull_frames}: a pull lasts at least 1 frame")
-        if self.lead_frames < 0:
-            raise ValueError(f"lead_frames={self.lead_frames} must be >= 0")
-        if self.hold_frames < 0:
-            raise ValueError(f"hold_frames={self.hold_frames} must be >= 0")
-        if not 1 <= self.min_pull_frames <= self.pull_frames:
-            raise ValueError(f"min_pull_frames={self.min_pull_frames} must be in 1..pull_frames")
-        pull_weight(0.5, self.profile)
+        """Raise ValueError naming the setting that is out of range (defaults are in range)."""
+        s = self.at_fps(None)
+        if s.pull_frames < 1:
+            raise ValueError(f"pull_frames={s.pull_frames}: a pull lasts at least 1 frame")
+        if s.lead_frames < 0:
+            raise ValueError(f"lead_frames={s.lead_frames} must be >= 0")
+        if s.hold_frames < 0:
+            raise ValueError(f"hold_frames={s.hold_frames} must be >= 0")
+        if not 1 <= s.min_pull_frames <= s.pull_frames:
+            raise ValueError(f"min_pull_frames={s.min_pull_frames} must be in 1..pull_frames")
+        pull_weight(0.5, s.profile)
 
 
 @dataclass
@@ -154,10 +180,12 @@ def shot_bounds(t: int, cuts) -> tuple[int, int | None]:
     return first, nxt
 
 
-def schedule_pulls(targets: list[PullTarget], settings: PullSettings, cuts=()) -> list[Pull]:
+def schedule_pulls(targets: list[PullTarget], settings: PullSettings, cuts=(), fps: float | None = None) -> list[Pull]:
     """When each pull starts and ends (see the module docstring); targets sorted by t;
-    cuts: sorted first frames of new shots (no pull crosses one)."""
+    cuts: sorted first frames of new shots (no pull crosses one); fps: the clip's frame rate,
+    which turns the settings' defaults into frames (None: 25 fps, :meth:`PullSettings.at_fps`)."""
     settings.check()
+    settings = settings.at_fps(fps)
     cuts = sorted(int(c) for c in cuts)
     pulls: list[Pull] = []
     prev_end = 0
@@ -203,11 +231,12 @@ def schedule_pulls(targets: list[PullTarget], settings: PullSettings, cuts=()) -
 
 
 def compose_track(targets: list[PullTarget], n_frames: int, settings: PullSettings | None = None,
-                  aperture: float = 1.0, cuts=()) -> ComposedTrack:
+                  aperture: float = 1.0, cuts=(), fps: float | None = None) -> ComposedTrack:
     """Per-frame focus and aperture for ``n_frames`` frames from targets (sorted by t).
 
     aperture: the starting aperture scale (>= 0); a target with its own aperture pulls it in
-    step with the focus. cuts: first frames of new shots (module docstring). Raises
+    step with the focus. cuts: first frames of new shots (module docstring). fps: the clip's
+    frame rate (frames/s) for the settings' defaults (None: 25 fps). Raises
     ValueError with no target or a target without any level.
     """
     settings = settings or PullSettings()
@@ -215,7 +244,7 @@ def compose_track(targets: list[PullTarget], n_frames: int, settings: PullSettin
         raise ValueError("no focus target: give at least one NFT")
     if any(targets[i].t > targets[i + 1].t for i in range(len(targets) - 1)):
         raise ValueError("targets must be sorted by frame")
-    pulls = schedule_pulls(targets, settings, cuts)
+    pulls = schedule_pulls(targets, settings, cuts, fps)
     k = np.arange(n_frames, dtype=np.float64)
     focus = fill_hold(targets[0].level)[:n_frames]
     ap = np.full(n_frames, float(targets[0].aperture if targets[0].aperture is not None else aperture))

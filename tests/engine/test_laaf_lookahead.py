@@ -64,6 +64,20 @@ def test_causal_mode_is_late_and_lookahead_is_not(runs):
     assert arrived[0] <= t - la.settings["lead_frames"] and arrived[1] >= t + la.settings["pull_frames"]
 
 
+def test_at_twice_the_frame_rate_the_pull_takes_as_long_in_seconds(tmp_path):
+    frames, maps, _ = entering_square(n=80, enter=50)
+    fdir, ddir = write_clip(tmp_path, frames, maps)
+    runs = {fps: AutofocusJob(AutofocusSettings(input=fdir, depth=ddir, preset="action", fps=fps)).run(progress=False)
+            for fps in (24, 48)}
+    assert [(r.settings["pull_frames"], r.settings["lead_frames"], r.settings["hold_frames"])
+            for r in runs.values()] == [(10, 5, 12), (19, 10, 23)]
+    for fps, (pull, lead) in ((24, (10, 5)), (48, (19, 10))):
+        r = runs[fps]
+        p = r.composed.pulls[0]
+        assert (p.start, p.end) == (r.nfts[1].t - lead - pull, r.nfts[1].t - lead), p
+        assert r.focus[p.end] == pytest.approx(0.0, abs=0.05) and r.focus[p.start] == pytest.approx(3.0, abs=0.05)
+
+
 def test_keys_reproduce_and_render_reads_the_focus_file(runs, square_clip, tmp_path):
     fdir, ddir, _ = square_clip
     r = runs[False]

@@ -12,6 +12,7 @@ from rvr_addon.io.track import load_track, resolve_track
 from rvr_addon.laaf.keyframes import evaluate_keys, keyframes
 from rvr_addon.laaf.nft import NFT, load_nfts, validate_nfts
 from rvr_addon.laaf.puller import PROFILES, PullSettings, PullTarget, compose_track, pull_weight, schedule_pulls
+from rvr_addon.laaf.timebase import frames_at
 
 
 def nft(t, x=50.0, y=40.0, box=(40.0, 30.0, 20.0, 20.0), **kw):
@@ -88,6 +89,26 @@ def test_pull_ends_exactly_lead_frames_before_the_nft(lead, pull, profile):
     assert track.focus[start] == pytest.approx(1.0) and track.focus[start + 1] > 1.0 + 1e-6  # starts there
     assert np.all(track.focus[end:] == pytest.approx(4.0))
     assert track.pulls[0].start == start and track.pulls[0].end == end
+
+
+@pytest.mark.parametrize("fps, pull, lead, hold", [(24, 10, 5, 12), (25, 10, 5, 12), (30, 12, 6, 14),
+                                                   (50, 20, 10, 24), (60, 24, 12, 29), (None, 10, 5, 12)])
+def test_the_default_pull_is_the_same_seconds_at_any_frame_rate(fps, pull, lead, hold):
+    s = PullSettings().at_fps(fps)  # 0.4 s, 0.2 s, 0.48 s: DESIGN's 10, 5, 12 frames at 25 fps
+    assert (s.pull_frames, s.lead_frames, s.hold_frames, s.min_pull_frames) == (pull, lead, hold, 2)
+    n, t_nft = 120, 80
+    track = compose_track([PullTarget(0, np.full(n, 1.0)), PullTarget(t_nft, np.full(n, 4.0))], n, fps=fps)
+    assert (track.pulls[0].start, track.pulls[0].end) == (t_nft - lead - pull, t_nft - lead)
+
+
+def test_pull_frames_a_user_gives_stay_frames_at_any_frame_rate():
+    s = PullSettings(pull_frames=7, lead_frames=0, hold_frames=3).at_fps(60)
+    assert (s.pull_frames, s.lead_frames, s.hold_frames, s.min_pull_frames) == (7, 0, 3, 2)
+    assert PullSettings(pull_frames=1).at_fps(60).min_pull_frames == 1
+    assert frames_at(10, 24) == frames_at(10, 25) == 10 and frames_at(10, 60) == 24 and frames_at(0.2, 25) == 1
+    assert frames_at(2, 12, 0) == 1 and frames_at(3, float("nan")) == 3
+    with pytest.raises(ValueError, match="pull_frames=0"):
+        PullSettings(pull_frames=0).check()
 
 
 def test_late_knowledge_starts_the_pull_late_with_full_length():

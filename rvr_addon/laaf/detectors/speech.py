@@ -101,6 +101,7 @@ import numpy as np
 
 from ..audio import VOICE_CHANGE_RANGE, AudioTrack, NoAudio, analyse_audio, decode_audio
 from ..nft import Box
+from ..timebase import REFERENCE_FPS, frames_at
 from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
 from .face import FaceDetector
 from .mediapipe_face import MediaPipeFaces, mediapipe_importable
@@ -184,7 +185,7 @@ def _mouth_cues(diff: np.ndarray, gray: np.ndarray, face: Box) -> tuple[float, f
     return (max(m, 0.0), dark) if np.isfinite(m) and np.isfinite(dark) else None
 
 
-COST_REFERENCE_FPS = 25.0
+COST_REFERENCE_FPS = REFERENCE_FPS
 """Frame rate at which ``switch_cost`` and ``pause_cost`` count frames of evidence (the rate of the
 clips they were set on): a 50 fps clip pays twice as many frames, so a change takes the same
 seconds of evidence at any frame rate (before, a 50 fps copy of GRID + restaurant followed the
@@ -211,7 +212,9 @@ class SpeechDetector(FocusDetector):
     plus ``none_score`` when positive.
     sync: localise without faces by audio-visual synchrony on frames with no face track.
     sync_min_corr: smoothed block correlation the synchrony peak must reach (0..1).
-    sync_margin: frames of silence around the voiced segment the synchrony window may use.
+    sync_margin: frames of silence around the voiced segment the synchrony window may use;
+    seg_margin: frames around a voiced segment the mouth windows may reach (both frames at 25 fps,
+    :mod:`..timebase`: the same seconds at the clip's rate).
     sync_box_frac: side of the speaker's square, as a fraction of the frame width.
     sync_face_gap_s: synchrony is not used within this many seconds after a frame with a face of
     the same shot (the face detector missed a face there: no background block speaks for it).
@@ -258,7 +261,9 @@ class SpeechDetector(FocusDetector):
         self.smooth = 0 if causal else max(0, int(round(smooth_s * fps)))
         self.mesh_every = max(1, int(mesh_every))
         self.motion_weight = float(motion_weight)
-        self.seg_margin = max(0, int(seg_margin))
+        seg_margin = frames_at(max(0, int(seg_margin)), fps, 0)  # frames at 25 fps (timebase)
+        sync_margin = frames_at(max(0, int(sync_margin)), fps, 0)
+        self.seg_margin = seg_margin
         self.mesh = MediaPipeFaces(detect=False) if mouth == "mesh" or (mouth == "auto" and mediapipe_importable()) \
             else None
         self._mesh_required = mouth == "mesh"
