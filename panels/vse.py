@@ -169,12 +169,30 @@ class RVR_PT_targets(_RefocusTab, bpy.types.Panel):
         col.prop(rvr, "lead_frames")
         col.prop(rvr, "pull_profile")
         col.prop(rvr, "hold_frames")
+        auto = auto_pull_line(context.scene, compat.active_strip(context))
+        if auto:
+            col.label(text=auto, icon="TIME")
         layout.operator("rvr.track_targets", icon="TRACKER")
         col = layout.column()
         col.prop(rvr, "autofocus_preset")
         col.prop(rvr, "focus_calm")
         col.prop(rvr, "lookahead_s")
         layout.operator("rvr.auto_focus", icon="VIEWZOOM")
+
+
+def auto_pull_line(scene, strip) -> str | None:
+    """What the strip's automatic pull settings (Pull 0, Lead / Hold -1) are in frames of its
+    clip: 0.4 / 0.2 / 0.48 s at the media's frame rate; None when every one is set."""
+    rvr = strip.rvr
+    if rvr.pull_frames > 0 and rvr.lead_frames >= 0 and rvr.hold_frames >= 0:
+        return None
+    from ..operators.source import scene_fps
+    from ..rvr_addon.laaf.puller import DEFAULT_HOLD_FRAMES, DEFAULT_LEAD_FRAMES, DEFAULT_PULL_FRAMES
+    from ..rvr_addon.laaf.timebase import frames_at
+
+    fps = float(getattr(strip, "fps", 0.0) or 0.0) or scene_fps(scene)
+    return (f"Automatic at {fps:g} fps: pull {frames_at(DEFAULT_PULL_FRAMES, fps)}, lead "
+            f"{frames_at(DEFAULT_LEAD_FRAMES, fps, 0)}, hold {frames_at(DEFAULT_HOLD_FRAMES, fps, 0)} frames")
 
 
 classes = (RVR_PT_focus, RVR_UL_nfts, RVR_PT_targets)

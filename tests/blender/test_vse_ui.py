@@ -49,6 +49,13 @@ def test_panels_draw(registered, movie_strip):
     names = {c[1] for c in rec.calls}
     assert {"RVR_UL_nfts", "rvr.add_focus_target", "rvr.track_targets", "rvr.auto_focus", "pull_frames",
             "lead_frames", "pull_profile", "autofocus_preset", "focus_calm", "lookahead_s", "box", "keep"} <= names
+    fps = movie_strip.fps  # the strip's defaults are durations, shown in frames of its clip
+    assert ("label", f"Automatic at {fps:g} fps: pull {round(0.4 * fps)}, lead {round(0.2 * fps)}, hold "
+                     f"{round(0.48 * fps)} frames") in rec.calls
+    movie_strip.rvr.pull_frames, movie_strip.rvr.lead_frames, movie_strip.rvr.hold_frames = 8, 2, 0
+    rec = LayoutRecorder()
+    bpy.types.RVR_PT_targets.draw(type("P", (), {"layout": rec})(), bpy.context)
+    assert not [c for c in rec.calls if c[0] == "label" and c[1].startswith("Automatic")]
     rec = LayoutRecorder()
     item = movie_strip.rvr.nfts[0]
     bpy.types.RVR_UL_nfts.draw_item(None, bpy.context, rec, movie_strip.rvr, item, 0, None, "", 0)
