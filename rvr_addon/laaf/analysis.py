@@ -46,6 +46,7 @@ from .presets import AUTO
 from .depth import DisparitySource
 from .detectors.base import AnalysisFrame, FocusDetector
 from .nft import Box
+from .timebase import frames_at
 
 if TYPE_CHECKING:
     from .lookahead import AutofocusSettings
@@ -168,7 +169,7 @@ def build_detectors(s: "AutofocusSettings", setup: ClipSetup, causal: bool, whol
     clip = setup.clip
     speaker = ("afnet" in names and s.afnet_speaker and clip.kind == "video" and clip.has_audio)
     if "face" in names or "speech" in names or speaker:
-        face = FaceDetector(backend=s.face_backend, every=s.face_every)
+        face = FaceDetector(backend=s.face_backend, every=frames_at(s.face_every, setup.fps))  # frames at 25 fps
         detectors["face"] = face
     if "saliency" in names:
         detectors["saliency"] = SaliencyDetector()
@@ -280,7 +281,7 @@ def measure_range(s: "AutofocusSettings", a: int, b: int) -> Iterator[FrameMeasu
     clip = setup.clip
     names = measured_names(dets, speech=clip.kind == "video" and clip.has_audio)
     analyser = FrameAnalyser(dets, names)
-    lo = analysis_start(a, s.face_every if "face" in names else None)
+    lo = analysis_start(a, dets["face"].every if "face" in names else None)
     # the shot cuts, as the run finds them (AutofocusJob: given, or detected on the analysis frames;
     # the detector is pairwise, so from lo on it says what the whole run's says)
     given = {int(c) - setup.start for c in s.cuts} if s.cuts is not None else None

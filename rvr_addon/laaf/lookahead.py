@@ -100,6 +100,8 @@ class AutofocusSettings:
     user; None: detected (``detect_cuts``). detect_cuts: False and no ``cuts``: no cuts at all.
     calm: 0 (responsive, the paper) .. 1 (calm): hysteresis, minimum hold, cost of a change
     and follow deadband (:mod:`.calm`).
+    face_every: the face detector runs every this many frames at 25 fps (the same seconds at the
+    clip's rate, :mod:`.timebase`; boxes held in between).
     """
 
     input: Path

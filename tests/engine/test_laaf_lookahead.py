@@ -76,6 +76,9 @@ def test_at_twice_the_frame_rate_the_pull_takes_as_long_in_seconds(tmp_path):
         p = r.composed.pulls[0]
         assert (p.start, p.end) == (r.nfts[1].t - lead - pull, r.nfts[1].t - lead), p
         assert r.focus[p.end] == pytest.approx(0.0, abs=0.05) and r.focus[p.start] == pytest.approx(3.0, abs=0.05)
+    faces = [AutofocusJob(AutofocusSettings(input=fdir, depth=ddir, preset="faces", fps=fps)).detectors["face"].every
+             for fps in (24, 48)]
+    assert faces == [6, 12]  # the face detector's stride: 0.24 s
 
 
 def test_keys_reproduce_and_render_reads_the_focus_file(runs, square_clip, tmp_path):
