@@ -93,7 +93,7 @@ def measure_mb_per_frame(clip: Path, cache: Path, folder: Path, preset: str | No
     from rvr_addon.laaf.lookahead import AutofocusSettings
 
     n = probe_clip(clip).frame_count
-    path = folder / "measure.pkl"
+    path = folder / "measure.npz"  # data only (io.datafile), as rvr batch names it
     settings = AutofocusSettings(input=clip, cache=cache, preset=preset)
     write_measurements(path, {"range": (0, n)}, measure_range(settings, 0, n))
     return path.stat().st_size / 2**20 / n
