@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .presets import AUTO
+from .timebase import frames_at
 
 if TYPE_CHECKING:  # pragma: no cover
     from .analysis import ClipSetup
@@ -35,7 +36,8 @@ log = logging.getLogger(__name__)
 PROBE_WINDOWS = 3
 """Short runs of frames decoded for the reading (start, middle, end of the run)."""
 PROBE_RUN = 6
-"""Consecutive frames per probe window (motion is measured between them; the first is probed for faces)."""
+"""Consecutive frames per probe window at 25 fps (:mod:`.timebase`: the same seconds at any rate; motion is
+measured between frames 1/25 s apart, faces on PROBE_FACES of them)."""
 PROBE_FACES = 2
 """Frames per window the face detector looks at."""
 MOTION_LEVEL = 20
@@ -123,21 +125,23 @@ def read_clip(s, setup: "ClipSetup", audio: "AudioTrack | None" = None) -> tuple
         return _READINGS[key], audio
     n = setup.n
     voiced = audio.voiced[:n] if audio is not None else np.zeros(0, bool)
-    starts = sorted({int(v) for v in np.linspace(0, max(n - PROBE_RUN, 0), PROBE_WINDOWS)})
+    # the windows and the motion between frames 1/25 s apart: the same seconds at any frame rate
+    run, gap = frames_at(PROBE_RUN, setup.fps), frames_at(1, setup.fps)
+    starts = sorted({int(v) for v in np.linspace(0, max(n - run, 0), PROBE_WINDOWS)})
     try:
         face = FaceDetector(backend=s.face_backend)
     except RuntimeError:
         face = None
     probed, with_face, max_faces, area, motion = [], 0, 0, 0.0, []
     for a in starts:
-        b = min(a + PROBE_RUN, n)
-        prev = None
+        b = min(a + run, n)
+        prev: list[np.ndarray] = []
         for j, rgb in enumerate(iter_frames(s.input, start=setup.start + a, stop=setup.start + b)):
             small, gray = shrink(rgb, setup.size)
-            if prev is not None:
-                motion.append(float(np.mean(np.abs(gray.astype(np.int16) - prev) > MOTION_LEVEL)))
-            prev = gray.astype(np.int16)
-            if face is not None and j % max(PROBE_RUN // PROBE_FACES, 1) == 0:
+            if len(prev) >= gap:
+                motion.append(float(np.mean(np.abs(gray.astype(np.int16) - prev[-gap]) > MOTION_LEVEL)))
+            prev = (prev + [gray.astype(np.int16)])[-gap:]
+            if face is not None and j % max(run // PROBE_FACES, 1) == 0:
                 boxes = face.detect(AnalysisFrame(a + j, small, gray, None, setup.scale, setup.fps))
                 probed.append(a + j)
                 if boxes:

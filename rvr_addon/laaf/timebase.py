@@ -20,3 +20,9 @@ def frames_at(reference_frames: float, fps: float | None, minimum: int = 1) -> i
     given (rounded)."""
     scale = float(fps) / REFERENCE_FPS if fps and math.isfinite(fps) and fps > 0 else 1.0
     return max(int(minimum), int(round(float(reference_frames) * scale)))
+
+
+def reference_frames_per_frame(fps: float | None) -> float:
+    """How many frames at :data:`REFERENCE_FPS` one frame at ``fps`` lasts (1 for None, 0 or not
+    finite): scales a per-frame rate (px a frame, a decay a frame) set at the reference rate."""
+    return REFERENCE_FPS / float(fps) if fps and math.isfinite(fps) and fps > 0 else 1.0

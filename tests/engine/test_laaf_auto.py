@@ -72,3 +72,18 @@ def test_auto_on_a_real_talking_head_picks_conversation(tmp_path):
     r = AutofocusJob(AutofocusSettings(input=CLIPS / "lipnet_grid_lwbsza.mpg", depth=d)).run(progress=False)
     assert r.settings["preset"] == "auto" and r.settings["preset_used"] == "conversation"
     assert r.settings["auto"]["reading"]["speech"] and r.settings["auto"]["reading"]["faces"]
+
+
+def test_auto_reads_the_same_motion_at_twice_the_frame_rate(tmp_path):
+    """The probe measures motion between frames 1/25 s apart: the same square at the same px a
+    second, recorded at 24 or 48 fps, reads alike (frame to frame at 48 fps it moves half as far)."""
+    readings = {}
+    for fps, speed, n in ((24, 3.0, 40), (48, 1.5, 80)):
+        frames, maps, _ = entering_square(n=n, enter=n // 4, speed=speed)
+        fdir, ddir = write_clip(tmp_path / str(fps), frames, maps)
+        out = tmp_path / f"focus{fps}.json"
+        assert rvr_main(["autofocus", str(fdir), "--depth", str(ddir), "--fps", str(fps), "-o", str(out), "-q"]) == 0
+        readings[fps] = json.loads(out.read_text())["settings"]["auto"]
+    assert readings[24]["chose"] == readings[48]["chose"] == "action"
+    m24, m48 = (readings[f]["reading"]["motion_share"] for f in (24, 48))
+    assert m48 == pytest.approx(m24, rel=0.25), (m24, m48)

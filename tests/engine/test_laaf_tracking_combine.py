@@ -154,3 +154,24 @@ def test_gradual_change_below_min_step_is_no_target():
 def test_synthetic_entering_square_is_consistent():
     frames, maps, boxes = entering_square()
     assert len(frames) == 40 and maps[25][36, 120] == 0.0 and maps[0][36, 100] == 3.0
+
+
+def test_the_action_detector_sees_the_same_speed_in_px_a_second_at_any_frame_rate():
+    """Its threshold (1.2 px a frame) and memory (0.4 a frame) are set at 25 fps: a subject moving
+    30 px a second is as hot at 50 fps (0.6 px a frame) and its heat fades as fast in seconds."""
+    from rvr_addon.laaf.detectors.action import ActionDetector
+    from rvr_addon.laaf.detectors.base import AnalysisFrame
+
+    def heats(fps: float, px_per_frame: float, frames: int) -> list[float]:
+        det = ActionDetector()
+        gray = np.zeros((18, 32), np.uint8)
+        out = []
+        for t in range(frames):
+            res = np.full((18, 32), px_per_frame if t == 0 else 0.0, np.float32)
+            det.ingest(t, AnalysisFrame(t, np.zeros((18, 32, 3), np.uint8), gray, None, 1.0, fps), (res, False))
+            out.append(float(det.output(t).heat.max()))
+        return out
+
+    h25, h50 = heats(25.0, 1.2, 3), heats(50.0, 0.6, 5)
+    assert h25[0] == pytest.approx(0.5) and h50[0] == pytest.approx(0.5)
+    assert h50[2] == pytest.approx(h25[1], rel=1e-5) and h50[4] == pytest.approx(h25[2], rel=1e-5)  # 40, 80 ms on

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from ..timebase import reference_frames_per_frame
 from .base import AnalysisFrame, DetectorOutput, FocusDetector
 
 
@@ -38,8 +39,10 @@ def solve_spd(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
 
 
 class ActionDetector(FocusDetector):
-    """H_act (module docstring). threshold_px: residual motion (px/frame at 320 px width; scaled
-    with the analysis width) that counts as action. decay: per-frame decay of the residual memory.
+    """H_act (module docstring). threshold_px: residual motion (px/frame at 320 px width and 25 fps;
+    scaled with the analysis width and the frame rate: the same px a second) that counts as
+    action. decay: per-frame decay of the residual memory at 25 fps (the same time constant at
+    any rate, :mod:`..timebase`).
     border_frac: a band this wide (fraction of the width) along the frame border is ignored:
     dense flow there has no support on one side and leaves false motion."""
 
@@ -203,8 +206,10 @@ class ActionDetector(FocusDetector):
         if measured is not None:
             res, failed = measured
             self._homography_failures += int(failed)
-            self._acc = res if self._acc is None else np.maximum(res, self.decay * self._acc)
-            heat = np.clip(0.5 * self._acc / self.threshold_px, 0.0, 1.0)
+            # px a frame and a decay a frame at 25 fps: the same px a second and time constant at any rate
+            per = reference_frames_per_frame(frame.fps)
+            self._acc = res if self._acc is None else np.maximum(res, self.decay ** per * self._acc)
+            heat = np.clip(0.5 * self._acc / (self.threshold_px * per), 0.0, 1.0)
             self._heat = {t: cv2.resize(heat, (w, h), interpolation=cv2.INTER_LINEAR)}
         else:
             self._heat = {t: np.zeros((h, w), np.float32)}
