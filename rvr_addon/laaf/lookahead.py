@@ -232,7 +232,8 @@ class AutofocusJob:
         # look-ahead: the persistence of a new level is checked in frames the window still sees before
         # the pull must start; causal: not at all (waiting for it would make every pull later still)
         spare = (0 if self.causal else
-                 self.window - self.detector_lag - self.step_detector.delay - self.pull.lead_frames - self.pull.pull_frames)
+                 self.window - self.detector_lag - self.step_detector.delay - self.pull.lead_frames
+                 - self.pull.pull_frames)
         self.calm = calm_settings(s.calm, self.fps, s.aperture, max_persist=spare)
         self.step_detector.min_step = s.min_step * self.calm.step_factor  # hysteresis
         keep = (self.detector_lag + self.step_detector.delay + 3 + self.pull.lead_frames + self.pull.pull_frames + 4
@@ -848,7 +849,8 @@ class AutofocusJob:
         settings = {"preset": s.preset, "preset_used": self.preset_used if self._combo else None,
                     "fallback": fallback or None, "window_s": 0.0 if self.causal else s.window_s,
                     "window_frames": self.window, "causal": self.causal, "pull_frames": self.pull.pull_frames,
-                    "lead_frames": self.pull.lead_frames, "profile": self.pull.profile, "hold_frames": self.pull.hold_frames,
+                    "lead_frames": self.pull.lead_frames, "profile": self.pull.profile,
+                    "hold_frames": self.pull.hold_frames,
                     "aperture": s.aperture, "analysis_width": self.size[0], "min_step": s.min_step,
                     "disparity": self.depth.label + (f" (channel {self.depth.channel})" if self.depth.channel else ""),
                     "auto": self.auto,
