@@ -74,7 +74,8 @@ from .tracking import SubjectTracker
 log = logging.getLogger(__name__)
 
 ONSET_BEFORE = 6
-"""Preset 'learned': a turn starting this many frames before an AF-Net NFT still explains it."""
+"""Preset 'learned': a turn starting this many frames (at 25 fps, :mod:`.timebase`) before an AF-Net NFT
+still explains it."""
 
 
 @dataclass
@@ -710,12 +711,13 @@ class AutofocusJob:
         speech = self.detectors.get("speech")
         if speech is None or not speech.available or not self.buffer:
             return None
-        turns = [(a, b) for a, b in speech.audio.segments() if t - ONSET_BEFORE <= a <= t + REGION_LAG_FRAMES]
+        before, lag = frames_at(ONSET_BEFORE, self.fps), frames_at(REGION_LAG_FRAMES, self.fps)  # frames at 25 fps
+        turns = [(a, b) for a, b in speech.audio.segments() if t - before <= a <= t + lag]
         if not turns:
             return None
         a, b = turns[0]
         best = None
-        for k in range(max(t, a, self.buffer[0].t), min(t + REGION_LAG_FRAMES, b, self.buffer[-1].t) + 1):
+        for k in range(max(t, a, self.buffer[0].t), min(t + lag, b, self.buffer[-1].t) + 1):
             box, corr, tid = speech.decide(k)
             if box is not None and (best is None or corr > best[1]):
                 best = (k, corr, box, tid)

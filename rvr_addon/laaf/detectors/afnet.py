@@ -8,7 +8,9 @@ query, scaled to a maximum of 1) still feeds the level signal, the plots and the
 focus on frame 0.
 
 ``lookahead_frames`` is what a decision needs: a query at q sees frames up to q + half_span,
-and a peak is final once the queries min_gap frames further are in.
+and a peak is final once the queries min_gap frames further are in. At 50-60 fps the network sees
+every other frame (:func:`decimation`): its windows are frames of the 24-25 fps clips it learned
+on; its NFTs and maps are mapped back to the clip's frames.
 """
 from __future__ import annotations
 
@@ -18,9 +20,16 @@ from pathlib import Path
 import numpy as np
 
 from ..combine import Region
+from ..timebase import REFERENCE_FPS
 from .base import AnalysisFrame, DetectorOutput, FocusDetector
 
 log = logging.getLogger(__name__)
+
+
+def decimation(fps: float | None) -> int:
+    """AF-Net sees every k-th frame of a clip at ``fps`` frames/s, k = fps / 25 rounded (1 up to
+    37 fps; 2 at 50 and 60 fps): its windows count frames of the 24-25 fps clips it learned on."""
+    return max(1, int(round(float(fps) / REFERENCE_FPS))) if fps and fps > 0 else 1
 
 
 class AFNetDetector(FocusDetector):
@@ -41,7 +50,10 @@ class AFNetDetector(FocusDetector):
 
         self.model, self.header = load_afnet(weights)
         self.config = self.model.config
-        gap = nft_min_gap(fps) if min_gap is None else int(min_gap)
+        # the network learned its windows in frames of 24-25 fps clips: it sees every k-th frame
+        self.every = decimation(fps)
+        stream_fps, stream_n = fps / self.every, -(-int(n_frames) // self.every)
+        gap = nft_min_gap(stream_fps) if min_gap is None else int(min_gap)
         if threshold is None:
             threshold = float(self.header.get("threshold", 0.5))
         self.threshold = threshold
@@ -50,12 +62,13 @@ class AFNetDetector(FocusDetector):
         if self.config.audio:
             from ...afnet.audio_features import clip_features
 
-            audio = clip_features(media, fps, n_frames, start_frame) if media is not None else None
+            audio = (clip_features(media, stream_fps, stream_n, start_frame / self.every)
+                     if media is not None else None)
             self.heard = audio is not None
             if audio is None:
                 log.debug("AF-Net hears no sound (no audio track): its audio input is silence")
-        self.stream = AFNetStream(self.model, n_frames, threshold, gap, audio=audio)
-        self.lookahead_frames = self.config.half_span + gap + self.config.stride
+        self.stream = AFNetStream(self.model, stream_n, threshold, gap, audio=audio)
+        self.lookahead_frames = (self.config.half_span + gap + self.config.stride) * self.every + self.every - 1
         self.size: tuple[int, int] | None = None
         self._frames = 0
         self._nfts = 0
@@ -64,8 +77,9 @@ class AFNetDetector(FocusDetector):
         from ...afnet.encoding import encode_frame
 
         self.size = (frame.rgb.shape[1], frame.rgb.shape[0])
-        self.stream.push(encode_frame(frame.rgb, frame.disparity, self.config))
-        self._frames += 1
+        if t % self.every == 0:
+            self.stream.push(encode_frame(frame.rgb, frame.disparity, self.config))
+            self._frames += 1
 
     def flush(self) -> None:
         self.stream.finish()
@@ -73,12 +87,12 @@ class AFNetDetector(FocusDetector):
     def output(self, t: int) -> DetectorOutput:
         import cv2
 
-        prob = self.stream.map_at(t)
+        prob = self.stream.map_at(t // self.every)
         if prob is None or self.size is None:
             return DetectorOutput(None)
         heat = prob / max(float(prob.max()), 1e-12)
         heat = cv2.resize(heat.astype(np.float32), self.size, interpolation=cv2.INTER_LINEAR)
-        self.stream.forget_maps_before(t - self.lookahead_frames)
+        self.stream.forget_maps_before((t - self.lookahead_frames) // self.every)
         return DetectorOutput(np.clip(heat, 0.0, 1.0))
 
     def take_nfts(self) -> list[tuple[int, int, float, Region]]:
@@ -93,7 +107,8 @@ class AFNetDetector(FocusDetector):
                 continue
             r = region_from_map(self.stream.maps[c], self.size)
             region = Region(r.x, r.y, r.box, r.mask, float(r.mask.mean()), ("afnet",))
-            out.append((peak.t, min(max(c, 0), self.stream.n - 1), peak.p, region))
+            k = self.every  # stream frames -> clip frames
+            out.append((peak.t * k, min(max(c, 0), self.stream.n - 1) * k, peak.p, region))
             self._nfts += 1
         return out
 
@@ -103,4 +118,4 @@ class AFNetDetector(FocusDetector):
                 "max_p": round(max(probs.values()), 4) if probs else None,
                 "receptive_field_frames": self.config.span, "padded": self.stream.padded,
                 "audio": bool(self.config.audio), "heard_sound": self.heard,
-                "threshold": self.threshold, "stride": self.config.stride}
+                "threshold": self.threshold, "stride": self.config.stride, "every": self.every}
