@@ -108,19 +108,22 @@ def test_autofocus_preset_learned(tmp_path, trained):
 
 
 def test_at_twice_the_frame_rate_afnet_sees_every_other_frame_and_finds_the_same_moment(tmp_path, trained):
-    """AF-Net's windows are frames of the 24-25 fps clips it learned on: a 50 fps clip (each
-    frame twice) is read at every other frame, and its NFT comes back in the clip's frames."""
-    from rvr_addon.laaf.detectors.afnet import decimation
+    """AF-Net's windows are frames of the 24-25 fps clips it learned on: a faster clip is read at
+    25 frames a second (a 50 fps clip, each frame twice, at every other frame), and its NFT comes
+    back in the clip's frames."""
+    from rvr_addon.laaf.detectors.afnet import frame_ratio, stream_frames
     from rvr_addon.laaf.lookahead import AutofocusJob, AutofocusSettings
 
-    assert [decimation(f) for f in (24, 25, 30, 37, 48, 50, 60, 120, None)] == [1, 1, 1, 1, 2, 2, 2, 5, 1]
+    assert [frame_ratio(f) for f in (24, 25, 30, 50, None)] == [1.0, 1.0, 1.2, 2.0, 1.0]
+    assert stream_frames(12, 1.2) == [0, 1, 2, 4, 5, 6, 7, 8, 10, 11]  # 30 fps: every 6th frame skipped
+    assert stream_frames(7, 2.0) == [0, 2, 4, 6] and stream_frames(5, 1.0) == [0, 1, 2, 3, 4]
     run, _ = trained
     frames, maps, _ = frames_of(30, 16, seed=77)
     fdir, ddir = write_sequence(tmp_path / "clip50", [f for f in frames for _ in (0, 1)],
                                 [d for d in maps for _ in (0, 1)])
     result = AutofocusJob(AutofocusSettings(input=fdir, depth=ddir, preset="learned", fps=50,
                                             afnet_weights=run / "afnet.pt")).run(progress=False)
-    assert result.detectors["afnet"]["every"] == 2 and result.detectors["afnet"]["frames"] == 30
+    assert result.detectors["afnet"]["frame_ratio"] == 2.0 and result.detectors["afnet"]["frames"] == 30
     learned = [n for n in result.nfts[1:] if n.source == "afnet"]
     assert len(learned) == 1 and abs(learned[0].act_at - 32) <= 6 and learned[0].known_at <= learned[0].t
     assert result.focus[-1] == pytest.approx(0.0, abs=0.3)

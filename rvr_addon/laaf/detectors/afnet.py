@@ -8,13 +8,15 @@ query, scaled to a maximum of 1) still feeds the level signal, the plots and the
 focus on frame 0.
 
 ``lookahead_frames`` is what a decision needs: a query at q sees frames up to q + half_span,
-and a peak is final once the queries min_gap frames further are in. At 50-60 fps the network sees
-every other frame (:func:`decimation`): its windows are frames of the 24-25 fps clips it learned
-on; its NFTs and maps are mapped back to the clip's frames.
+and a peak is final once the queries min_gap frames further are in. Above 25 fps the network reads
+the clip at 25 frames a second (:func:`frame_ratio`: every 6th frame of a 30 fps clip skipped, every
+other one of 50 fps): its windows are frames of the 24-25 fps clips it learned on; its NFTs and
+maps are mapped back to the clip's frames.
 """
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +28,20 @@ from .base import AnalysisFrame, DetectorOutput, FocusDetector
 log = logging.getLogger(__name__)
 
 
-def decimation(fps: float | None) -> int:
-    """AF-Net sees every k-th frame of a clip at ``fps`` frames/s, k = fps / 25 rounded (1 up to
-    37 fps; 2 at 50 and 60 fps): its windows count frames of the 24-25 fps clips it learned on."""
-    return max(1, int(round(float(fps) / REFERENCE_FPS))) if fps and fps > 0 else 1
+def frame_ratio(fps: float | None) -> float:
+    """Clip frames per AF-Net frame: fps / 25 above 25 fps, else 1. The network learned its
+    windows in frames of 24-25 fps clips, so a faster clip is read at 25 frames a second (the
+    clip frame nearest each 1/25 s); slower clips frame by frame, as it was trained."""
+    return max(1.0, float(fps) / REFERENCE_FPS) if fps and fps > 0 else 1.0
+
+
+def stream_frames(n_frames: int, ratio: float) -> list[int]:
+    """The clip frames AF-Net reads, in order: round(j * ratio) for j = 0, 1, ... below n_frames."""
+    out, j = [], 0
+    while (t := int(round(j * ratio))) < n_frames:
+        out.append(t)
+        j += 1
+    return out
 
 
 class AFNetDetector(FocusDetector):
@@ -50,9 +62,11 @@ class AFNetDetector(FocusDetector):
 
         self.model, self.header = load_afnet(weights)
         self.config = self.model.config
-        # the network learned its windows in frames of 24-25 fps clips: it sees every k-th frame
-        self.every = decimation(fps)
-        stream_fps, stream_n = fps / self.every, -(-int(n_frames) // self.every)
+        # the network learned its windows in frames of 24-25 fps clips: it reads the clip at that rate
+        self.ratio = frame_ratio(fps)
+        self.clip_frames = stream_frames(int(n_frames), self.ratio)  # AF-Net frame j -> clip frame
+        self._read = set(self.clip_frames)
+        stream_fps, stream_n = fps / self.ratio, len(self.clip_frames)
         gap = nft_min_gap(stream_fps) if min_gap is None else int(min_gap)
         if threshold is None:
             threshold = float(self.header.get("threshold", 0.5))
@@ -62,13 +76,13 @@ class AFNetDetector(FocusDetector):
         if self.config.audio:
             from ...afnet.audio_features import clip_features
 
-            audio = (clip_features(media, stream_fps, stream_n, start_frame / self.every)
+            audio = (clip_features(media, stream_fps, stream_n, start_frame / self.ratio)
                      if media is not None else None)
             self.heard = audio is not None
             if audio is None:
                 log.debug("AF-Net hears no sound (no audio track): its audio input is silence")
         self.stream = AFNetStream(self.model, stream_n, threshold, gap, audio=audio)
-        self.lookahead_frames = (self.config.half_span + gap + self.config.stride) * self.every + self.every - 1
+        self.lookahead_frames = int(math.ceil((self.config.half_span + gap + self.config.stride + 1) * self.ratio))
         self.size: tuple[int, int] | None = None
         self._frames = 0
         self._nfts = 0
@@ -77,7 +91,7 @@ class AFNetDetector(FocusDetector):
         from ...afnet.encoding import encode_frame
 
         self.size = (frame.rgb.shape[1], frame.rgb.shape[0])
-        if t % self.every == 0:
+        if t in self._read:
             self.stream.push(encode_frame(frame.rgb, frame.disparity, self.config))
             self._frames += 1
 
@@ -87,13 +101,17 @@ class AFNetDetector(FocusDetector):
     def output(self, t: int) -> DetectorOutput:
         import cv2
 
-        prob = self.stream.map_at(t // self.every)
+        prob = self.stream.map_at(self._stream_index(t))
         if prob is None or self.size is None:
             return DetectorOutput(None)
         heat = prob / max(float(prob.max()), 1e-12)
         heat = cv2.resize(heat.astype(np.float32), self.size, interpolation=cv2.INTER_LINEAR)
-        self.stream.forget_maps_before((t - self.lookahead_frames) // self.every)
+        self.stream.forget_maps_before(self._stream_index(t - self.lookahead_frames))
         return DetectorOutput(np.clip(heat, 0.0, 1.0))
+
+    def _stream_index(self, t: int) -> int:
+        """The AF-Net frame nearest clip frame t."""
+        return int(round(t / self.ratio))
 
     def take_nfts(self) -> list[tuple[int, int, float, Region]]:
         """NFTs that became certain: (frame t, frame whose map gave the region, probability,
@@ -107,8 +125,8 @@ class AFNetDetector(FocusDetector):
                 continue
             r = region_from_map(self.stream.maps[c], self.size)
             region = Region(r.x, r.y, r.box, r.mask, float(r.mask.mean()), ("afnet",))
-            k = self.every  # stream frames -> clip frames
-            out.append((peak.t * k, min(max(c, 0), self.stream.n - 1) * k, peak.p, region))
+            at = self.clip_frames  # AF-Net frames -> clip frames
+            out.append((at[peak.t], at[min(max(c, 0), self.stream.n - 1)], peak.p, region))
             self._nfts += 1
         return out
 
@@ -118,4 +136,4 @@ class AFNetDetector(FocusDetector):
                 "max_p": round(max(probs.values()), 4) if probs else None,
                 "receptive_field_frames": self.config.span, "padded": self.stream.padded,
                 "audio": bool(self.config.audio), "heard_sound": self.heard,
-                "threshold": self.threshold, "stride": self.config.stride, "every": self.every}
+                "threshold": self.threshold, "stride": self.config.stride, "frame_ratio": round(self.ratio, 4)}
