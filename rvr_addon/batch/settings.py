@@ -85,7 +85,8 @@ class BatchSettings:
 
     def fingerprint(self, weights_id: str) -> str:
         """Hash (16 hex) of everything that changes a clip's outputs: the settings, the engine
-        version and the weights (``weights_id``, e.g. their hash). Done markers record it."""
+        version, the version of LAAF's decision and the weights (``weights_id``, e.g. their hash).
+        Done markers record it."""
         record = asdict(self)
         for k in ("output", "cache_root", "chunk_frames", "force", "retries", "keep_cache"):
             record.pop(k)
@@ -94,7 +95,9 @@ class BatchSettings:
             # field of view is not used): earlier done markers still match
             record.pop("depth_method")
             record.pop("hfov_deg")
-        record.update(engine_version=__version__, weights=weights_id)
+        from ..laaf.presets import DECISION_VERSION
+
+        record.update(engine_version=__version__, weights=weights_id, laaf_decision=DECISION_VERSION)
         return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 

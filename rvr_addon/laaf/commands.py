@@ -9,7 +9,7 @@ from ..errors import RvrError
 
 
 def add_pull_args(p: argparse.ArgumentParser) -> None:
-    """``--pull-frames --lead-frames --profile --hold-frames`` (rvr autofocus, eval-focus, batch)."""
+    """``--pull-frames --lead-frames --profile --hold-frames`` (rvr autofocus, eval-focus, batch, refocus)."""
     from .presets import PROFILES
 
     p.add_argument("--pull-frames", type=int,

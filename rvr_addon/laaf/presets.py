@@ -18,6 +18,11 @@ AUTO = "auto"
 DEFAULT_PRESET = AUTO
 """The preset `rvr autofocus`, `rvr refocus`, `rvr batch` and Blender use when none is chosen."""
 
+DECISION_VERSION = 2
+"""Version of LAAF's decision: bump it when the same clip, depth and settings give another focus
+decision, so what was reused by its settings (``rvr refocus``'s focus file, ``rvr batch``'s done
+markers) is made again. 2 (2026-12-07): pulls, windows and detector rates in seconds, not frames."""
+
 DEFAULT_CALM = 0.5
 """The default of the calm <-> responsive knob, 0..1 (:mod:`.calm`; ``rvr autofocus --calm``, Blender)."""
 

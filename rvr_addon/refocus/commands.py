@@ -78,9 +78,10 @@ def add_parser(sub) -> None:
     p.add_argument("--window", type=float, default=2.0, help="look-ahead window of the autofocus in s (default 2)")
     p.add_argument("--causal", action="store_true",
                    help="no look-ahead (what a camera could do live): the autofocus and the temporal filter see no later frame")
-    from ..laaf.commands import add_calm_cuts_args
+    from ..laaf.commands import add_calm_cuts_args, add_pull_args
 
     add_calm_cuts_args(p)  # frames of --cuts are frames of the clip, whatever --start says
+    add_pull_args(p)
     p.add_argument("--no-stabilize", action="store_true", help="skip the temporal filter of the depth")
     p.add_argument("--weights", type=Path, help="estimator weights (default: the shipped ones)")
     p.add_argument("--fps", type=float, help="frame rate of an image-sequence input (default 24)")
@@ -126,16 +127,17 @@ def settings_from_args(args: argparse.Namespace):
     side = None if args.side_by_side is None else Path(args.side_by_side or derived_path(output, beside))
     sheet = None if args.preview is None else Path(args.preview or derived_path(output, "_sheet.png"))
     preset = args.preset  # None: the default preset, unless a subject is pinned (refocus_job decides)
-    from ..laaf.commands import calm_cuts_from_args
+    from ..laaf.commands import calm_cuts_from_args, pull_settings
 
     cut_list = calm_cuts_from_args(args)
+    pull = pull_settings(args)
     return RefocusSettings(
         input=args.input, output=output, cache=args.cache, preset=preset, focus_on=args.focus_on, aperture=aperture,
         spec=ApertureSpec(shape=args.shape, blades=args.blades), start=args.start, stop=args.stop,
         duration_s=args.duration, max_size=args.max_size or None, side_by_side=side, preview=sheet,
         depth_method=args.depth_method, hfov_deg=args.hfov, window_s=args.window, causal=args.causal, weights=args.weights, fps=args.fps,
         stabilize=not args.no_stabilize, calm=args.calm, cuts=cut_list, detect_cuts=not args.no_cuts,
-        track=args.track, device=args.device)
+        track=args.track, device=args.device, pull=pull)
 
 
 def run_with_progress(chain, quiet: bool) -> None:

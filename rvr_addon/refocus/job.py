@@ -14,8 +14,9 @@ import json
 import logging
 import os
 import shutil
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from .. import __version__
 from ..errors import InputError
@@ -23,6 +24,9 @@ from ..io.paths import temp_sibling
 from ..render.aperture import ApertureSpec
 from . import DEFAULT_MAX_SIZE
 from .chain import JobChain, Stage
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..laaf.puller import PullSettings
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +74,8 @@ class RefocusSettings:
     preview_rows: int = 4
     calm: float | None = None
     """LAAF's calm <-> responsive knob 0..1 (None: its default)."""
+    pull: PullSettings | None = None
+    """Focus pulls' length, lead, profile and hold (None: LAAF's defaults, 0.4 s pulls landing 0.2 s early)."""
     cuts: list[int] | None = None
     """Shot cuts given by the user (0-based frames of the source clip); None: detected."""
     detect_cuts: bool = True
@@ -113,12 +119,14 @@ def derived_path(output: Path, suffix: str) -> Path:
 
 def focus_key(cache: Path, settings: dict) -> str:
     """16 hex naming an autofocus decision: the cache's key and stabilization record (what the
-    depth maps are) and the focus settings."""
+    depth maps are), the focus settings and the version of LAAF's decision logic."""
     meta = json.loads((Path(cache) / "meta.json").read_text())
     from ..estimate.cache import KEY_FIELDS
+    from ..laaf.presets import DECISION_VERSION
 
     record = {k: meta.get(k) for k in KEY_FIELDS}
-    record.update(stabilized=meta.get("stabilized"), focus=settings, engine_version=__version__)
+    record.update(stabilized=meta.get("stabilized"), focus=settings, engine_version=__version__,
+                  laaf_decision=DECISION_VERSION)
     return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -262,8 +270,10 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     first = s.start if proxy else 0
     cuts = None if s.cuts is None else [c - first for c in s.cuts if 0 < c - first < n]
     calm = {} if s.calm is None else {"calm": s.calm}
+    pull = {} if s.pull is None else {"pull": s.pull}
     focus_settings = {"preset": preset, "focus_on": focus_on, "aperture": s.aperture, "window_s": s.window_s,
-                      "causal": s.causal, "cuts": cuts, "detect_cuts": s.detect_cuts, **calm}
+                      "causal": s.causal, "cuts": cuts, "detect_cuts": s.detect_cuts, **calm,
+                      **({"pull": asdict(s.pull)} if s.pull is not None else {})}
 
     def build_autofocus():
         from ..laaf.lookahead import AutofocusJob, AutofocusSettings
@@ -282,7 +292,7 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
             nfts = [pinned_target(focus_on, run.size)]
         return AutofocusJob(AutofocusSettings(input=run.clip, cache=run.cache, preset=preset, nfts=nfts,
                                               window_s=s.window_s, causal=s.causal, aperture=s.aperture,
-                                              fps=s.fps, cuts=cuts, detect_cuts=s.detect_cuts, **calm))
+                                              fps=s.fps, cuts=cuts, detect_cuts=s.detect_cuts, **calm, **pull))
 
     def finish_autofocus(job) -> None:
         from ..laaf.focusfile import write_focus_file

@@ -310,3 +310,28 @@ def test_still_image_writer_is_atomic_and_holds_one_frame(tmp_path):
     with pytest.raises(InputError, match="picture is written as"):
         StillImageWriter(tmp_path / "e.gif")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.exr", "p.jpg"]
+
+
+def test_a_new_decision_logic_makes_the_focus_decision_again(tmp_path, monkeypatch):
+    """rvr refocus reuses a focus file by its depth and settings; a change of LAAF's decision
+    (DECISION_VERSION) must not reuse one made by the old logic (nor may rvr batch's markers)."""
+    from rvr_addon.batch.settings import BatchSettings
+    from rvr_addon.laaf import presets
+    from rvr_addon.refocus.job import focus_key
+
+    (tmp_path / "meta.json").write_text("{}")
+    settings = {"preset": "auto", "window_s": 2.0}
+    before = focus_key(tmp_path, settings), BatchSettings(output=tmp_path).fingerprint("w")
+    assert before == (focus_key(tmp_path, settings), BatchSettings(output=tmp_path).fingerprint("w"))
+    monkeypatch.setattr(presets, "DECISION_VERSION", presets.DECISION_VERSION + 1)
+    after = focus_key(tmp_path, settings), BatchSettings(output=tmp_path).fingerprint("w")
+    assert after[0] != before[0] and after[1] != before[1]
+
+
+def test_refocus_takes_the_pull_options_and_they_name_the_focus_decision(tmp_path):
+    args = build_parser().parse_args(["refocus", "clip.mp4", "--pull-frames", "6", "--profile", "ease_in_out_sine"])
+    s = settings_from_args(args)
+    assert (s.pull.pull_frames, s.pull.lead_frames, s.pull.profile) == (6, None, "ease_in_out_sine")
+    assert settings_from_args(build_parser().parse_args(["refocus", "clip.mp4"])).pull.at_fps(60).pull_frames == 24
+    with pytest.raises(Exception, match="pull-frames"):
+        settings_from_args(build_parser().parse_args(["refocus", "clip.mp4", "--pull-frames", "0"]))
