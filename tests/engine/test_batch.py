@@ -274,7 +274,8 @@ def test_laaf_measured_in_chunks_equals_one_pass_conversation(tmp_path, monkeypa
 
 def test_depth_method_reaches_the_estimate_and_the_fingerprint(tmp_path, data, monkeypatch):
     """Fused depth (auto, parallax, people) is one estimate task per clip; network and external are
-    chunked; the method is part of the fingerprint (network keeps the one of earlier batches)."""
+    chunked; the method is part of the fingerprint (network keeps the formula of earlier batches, with
+    LAAF's decision version since that changed)."""
     import dataclasses
     import hashlib
 
@@ -282,6 +283,7 @@ def test_depth_method_reaches_the_estimate_and_the_fingerprint(tmp_path, data, m
     from rvr_addon.batch import stages
     from rvr_addon.batch.chunks import estimate_ranges
     from rvr_addon.batch.graph import check_settings
+    from rvr_addon.laaf.presets import DECISION_VERSION
 
     auto = BatchSettings(output=tmp_path / "out", weights=data["weights"], chunk_frames=4)
     network = dataclasses.replace(auto, depth_method="network")
@@ -295,9 +297,9 @@ def test_depth_method_reaches_the_estimate_and_the_fingerprint(tmp_path, data, m
     record = dataclasses.asdict(network)  # the fingerprint of a batch made before the depth system
     for k in ("output", "cache_root", "chunk_frames", "force", "retries", "keep_cache", "depth_method", "hfov_deg"):
         record.pop(k)
-    record.update(engine_version=__version__, weights="w")
+    record.update(engine_version=__version__, weights="w", laaf_decision=DECISION_VERSION)
     old = hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
-    assert network.fingerprint("w") == old
+    assert network.fingerprint("w") == old  # (since LAAF's decision version 2 with it: focus in seconds)
     # bad combinations fail before any cluster starts
     with pytest.raises(InputError, match="--depth-method external needs --depth-root"):
         check_settings(dataclasses.replace(auto, depth_method="external"))
