@@ -59,6 +59,10 @@ class ClipInfo:
     frame_count: int
     has_audio: bool
     kind: str  # "video" or "images"
+    nominal_fps: float | None = None
+    """A variable-frame-rate video's nominal rate (frames/s; ``fps`` is then its average, and frames
+    are counted in decode order): what a constant-rate decode (``iter_frames(cfr_fps=...)``) uses.
+    None for a constant-rate video or an image sequence."""
 
 
 HDR_TRANSFERS = {"arib-std-b67": "HLG", "smpte2084": "PQ (HDR10)"}
@@ -316,18 +320,28 @@ def _container_fps(path: Path) -> float:
     return fps if np.isfinite(fps) and fps > 0 else 0.0
 
 
-def _warn_if_vfr(path: Path, description: str, fps: float) -> None:
+def vfr_rates(description: str) -> tuple[float, float] | None:
+    """(average, nominal) frames/s of a video whose ffmpeg stream description shows a variable
+    frame rate (the two differ by more than 2 %), else None."""
     match = _STREAM_FPS.search(description)
     if not match:
-        return
+        return None
     average = float(match.group(1)) * (1000 if match.group(2) else 1)
     nominal = float(match.group(3)) * (1000 if match.group(4) else 1)
     if average > 0 and nominal > 0 and abs(average - nominal) > 0.02 * nominal:
-        log.warning(
-            "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). Frames are used in decode "
-            "order at %.4g fps; convert the clip to a constant frame rate if timing matters.",
-            path, average, nominal, fps,
-        )
+        return average, nominal
+    return None
+
+
+def _warn_if_vfr(path: Path, rates: tuple[float, float], fps: float) -> None:
+    average, nominal = rates
+    log.warning(
+        "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). rvr refocus decodes it at a constant "
+        "%.4g fps (each frame placed by its timestamp), so sound and picture stay in sync; the other commands use "
+        "its frames in decode order at %.4g fps: convert it first if timing matters there "
+        "(ffmpeg -i IN -fps_mode cfr -r %.4g OUT.mp4).",
+        path, average, nominal, nominal, fps, nominal,
+    )
 
 
 def _read_exact(stream, count: int) -> bytearray | None:
@@ -565,17 +579,19 @@ def _seek_target(key: Packet, next_key: Packet | None, time_base: Fraction) -> f
     return target / us
 
 
-def _video_command(video: Path, start: int, stop: int | None) -> list[str]:
-    """The ffmpeg command decoding frames start..stop-1 into a PPM pipe (seeking when exact)."""
+def _video_command(video: Path, start: int, stop: int | None, cfr_fps: float | None = None) -> list[str]:
+    """The ffmpeg command decoding frames start..stop-1 into a PPM pipe (seeking when exact);
+    cfr_fps: frames of a constant-rate timeline at that rate instead (ffmpeg's fps filter repeats or
+    drops frames by their timestamps), decoded from the first frame."""
     head = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "warning", "-reinit_filter", "0"]
     tail = ["-map", "0:V:0", "-fps_mode", "passthrough", "-an", "-sn", "-dn"]
     point = None
-    if start > 0:
+    if start > 0 and cfr_fps is None:
         scan = scan_packets(video, start)
         point = seek_point(scan, start) if scan is not None else None
         if point is None:
             log.debug("'%s': no exact seek point for frame %d; decoding from the first frame", video, start)
-    filters = []
+    filters = [] if cfr_fps is None else [f"fps={cfr_fps:.6f}"]
     if point is not None:
         target, threshold = point
         cmd = head + ["-seek_timestamp", "1", "-ss", f"{target:.6f}", "-noaccurate_seek", "-copyts",
@@ -595,7 +611,7 @@ def _video_command(video: Path, start: int, stop: int | None) -> list[str]:
     return cmd + ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
 
 
-def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
+def _iter_video(video: Path, start: int, stop: int | None, cfr_fps: float | None = None) -> Iterator[np.ndarray]:
     """Decode with the bundled ffmpeg into a PPM pipe.
 
     ffmpeg (unlike OpenCV's capture, which always assumes BT.601) converts with the colour
@@ -604,7 +620,7 @@ def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarra
     being scaled away silently; it is then reported as an InputError. A range from start > 0
     seeks where that is exact (module docstring), else decodes from the first frame.
     """
-    cmd = _video_command(video, start, stop)
+    cmd = _video_command(video, start, stop, cfr_fps)
     with tempfile.TemporaryFile() as log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
         watch = _LogWatch(log_file)
@@ -681,17 +697,21 @@ def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
         frames.close()
     if first is None or count <= 0:
         raise VideoOpenError(f"Video '{video}' has no decodable frames; the file may be truncated. Re-export or re-copy it.")
+    nominal = None
     if fps is None:
         fps = _container_fps(video)
         if not fps:
             fps = DEFAULT_SEQUENCE_FPS
             log.warning("'%s' has no frame rate; assuming %.4g fps. Pass fps= to set it.", video, fps)
-        _warn_if_vfr(video, description, fps)
+        rates = vfr_rates(description)
+        if rates is not None:
+            _warn_if_vfr(video, rates, fps)
+            nominal = rates[1]
     transfer = hdr_transfer(description)
     if transfer is not None and _ffmpeg_has_tonemap():
         log.info("'%s' is HDR (%s): its frames are tone-mapped to SDR BT.709, which the engine and the refocused "
                  "video use", video, transfer)
-    return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video")
+    return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video", nominal)
 
 
 def _check_range(path: str | Path, start: int, stop: int | None) -> None:
@@ -708,8 +728,13 @@ def _size_error(index: int, source: Path, got: tuple, want: tuple) -> InputError
     )
 
 
-def iter_frames(path: str | Path, start: int = 0, stop: int | None = None) -> Iterator[np.ndarray]:
+def iter_frames(path: str | Path, start: int = 0, stop: int | None = None,
+                cfr_fps: float | None = None) -> Iterator[np.ndarray]:
     """Yield frames start..stop-1 (stop None = to the end) as (H, W, 3) uint8 RGB.
+
+    cfr_fps (videos): count frames on a constant-rate timeline at this rate, frame k being the one
+    shown at k / cfr_fps s (repeated or dropped by their timestamps: a variable-frame-rate clip
+    kept in sync with its sound, ``ClipInfo.nominal_fps``); decoded from the first frame.
 
     Streams one decoded frame at a time. Videos are positioned by seeking to the keyframe
     before ``start`` where the packet timestamps make that exact (MP4/MOV, Matroska; any frame
@@ -724,7 +749,7 @@ def iter_frames(path: str | Path, start: int = 0, stop: int | None = None) -> It
     if kind == "images":
         yield from _iter_images(files, start, stop)
     else:
-        yield from _iter_video(files[0], start, stop)
+        yield from _iter_video(files[0], start, stop, cfr_fps)
 
 
 def _iter_images(files: list[Path], start: int, stop: int | None) -> Iterator[np.ndarray]:

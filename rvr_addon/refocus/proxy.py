@@ -1,8 +1,12 @@
 """The working copy of a clip: resized so its long side is at most ``max_size`` px and/or cut
 to a frame range, written once as a near-lossless H.264 MP4 (the source audio kept, from the
-range's start), so every later stage reads one small clip instead of resizing on each pass."""
+range's start), so every later stage reads one small clip instead of resizing on each pass. A
+variable-frame-rate video (phones, Android above all) is copied at its nominal constant rate, each
+frame placed by its timestamp, so the sound the autofocus listens to and the output carries stays
+in sync with the picture."""
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -27,9 +31,21 @@ def proxy_size(width: int, height: int, max_size: int | None) -> tuple[int, int]
 
 
 def needs_proxy(clip: ClipInfo, max_size: int | None, start: int, stop: int | None) -> bool:
-    """True when the clip must be resized or cut before the pipeline reads it."""
+    """True when the clip must be resized, cut or brought to a constant frame rate (a
+    variable-frame-rate video, ``ClipInfo.nominal_fps``) before the pipeline reads it."""
     whole = start == 0 and (stop is None or stop >= clip.frame_count)
-    return proxy_size(clip.width, clip.height, max_size) != (clip.width, clip.height) or not whole
+    return (proxy_size(clip.width, clip.height, max_size) != (clip.width, clip.height) or not whole
+            or clip.nominal_fps is not None)
+
+
+def constant_rate(clip: ClipInfo) -> ClipInfo:
+    """A variable-frame-rate video as its working copy will be: ``nominal_fps`` frames a second
+    (frame k shown at k / nominal_fps s), as many frames as its duration holds; other clips as
+    they are."""
+    if clip.nominal_fps is None:
+        return clip
+    seconds = clip.frame_count / clip.fps  # frames in decode order at their average rate
+    return replace(clip, fps=clip.nominal_fps, frame_count=max(1, int(round(seconds * clip.nominal_fps))))
 
 
 class ProxyJob(VideoWriteJob):
@@ -39,9 +55,13 @@ class ProxyJob(VideoWriteJob):
 
     def __init__(self, source: Path, output: Path, max_size: int | None, start: int = 0, stop: int | None = None,
                  fps: float | None = None, clip: ClipInfo | None = None) -> None:
-        """clip: the source's ClipInfo when the caller has probed it already (else probed here)."""
+        """clip: the source's ClipInfo when the caller has probed it already (else probed here). A
+        variable-frame-rate video is copied at a constant rate (:func:`constant_rate`: start and
+        stop count frames of that timeline), so its sound stays in sync."""
         self.source, self.output = Path(source), Path(output)
-        self.clip = clip if clip is not None else probe_clip(self.source, fps=fps)
+        probed = clip if clip is not None else probe_clip(self.source, fps=fps)
+        self.cfr_fps = probed.nominal_fps
+        self.clip = constant_rate(probed)
         self.stop = self.clip.frame_count if stop is None else min(stop, self.clip.frame_count)
         if start < 0 or start >= self.stop:
             raise InputError(f"--start {start} / --stop {stop}: the range is empty for '{self.source}' "
@@ -55,7 +75,7 @@ class ProxyJob(VideoWriteJob):
         audio = self.source if self.clip.has_audio else None
         writer = VideoWriter(self.output, fps=self.clip.fps, size=self.size, audio_from=audio, crf=PROXY_CRF,
                              audio_start=self.start / self.clip.fps)
-        return iter_frames(self.source, start=self.start, stop=self.stop), writer
+        return iter_frames(self.source, start=self.start, stop=self.stop, cfr_fps=self.cfr_fps), writer
 
     def frame(self, item: np.ndarray) -> np.ndarray:
         """The frame resized (area filter) to the copy's size."""
@@ -66,5 +86,8 @@ class ProxyJob(VideoWriteJob):
         return item
 
     def ended_early(self) -> None:
-        """A copy shorter than the range is refused."""
+        """A copy shorter than the range is refused (a constant-rate copy of a variable-rate clip may
+        end a frame before the count its duration gave)."""
+        if self.cfr_fps is not None and self.done >= self.total - 2 and self.done > 0:
+            return
         raise InputError(f"'{self.source}' ended after {self.done} of {self.total} frames")

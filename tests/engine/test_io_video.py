@@ -9,6 +9,7 @@ import pytest
 
 from rvr_addon.errors import InputError, VideoOpenError
 from rvr_addon.io.video import ClipInfo, iter_frames, probe_clip
+from vfr_synth import flash_clip, flash_frames
 
 
 # ----------------------------------------------------------------------------- videos
@@ -222,6 +223,20 @@ def test_variable_frame_rate_warns(ffmpeg_run, tmp_path, caplog):
     assert info.frame_count == 12
     assert sum(1 for _ in iter_frames(path)) == 12
     assert any("variable-frame-rate" in r.getMessage() and "vfr.mp4" in r.getMessage() for r in caplog.records)
+
+
+def test_a_variable_frame_rate_clip_decodes_at_its_nominal_constant_rate(ffmpeg_run, tmp_path):
+    """In decode order the flash at 2.5 s is frame 55 (20 frames were dropped before it): at the
+    container's average rate that is 2.2 s, out of step with its sound; on the constant-rate
+    timeline it is frame 75 = 2.5 s."""
+    path = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
+    info = probe_clip(path)
+    assert info.nominal_fps == pytest.approx(30.0) and info.fps < 29 and info.frame_count == 85
+    assert flash_frames(path)[0] == 55
+    assert flash_frames(path, cfr_fps=info.nominal_fps)[:1] == [75]
+    assert abs(sum(1 for _ in iter_frames(path, cfr_fps=30.0)) - 105) <= 1
+    assert flash_frames(path, start=70, stop=80, cfr_fps=30.0)[0] == 5  # frames of that timeline
+    assert probe_clip(path, fps=30.0).nominal_fps is None  # a rate the user gives is taken as it is
 
 
 # ----------------------------------------------------------------------------- seeking
