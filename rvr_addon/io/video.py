@@ -336,8 +336,8 @@ def vfr_rates(description: str) -> tuple[float, float] | None:
 def _warn_if_vfr(path: Path, rates: tuple[float, float], fps: float) -> None:
     average, nominal = rates
     log.warning(
-        "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). rvr refocus decodes it at a constant "
-        "%.4g fps (each frame placed by its timestamp), so sound and picture stay in sync; the other commands use "
+        "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). rvr refocus and rvr batch decode it at a "
+        "constant %.4g fps (each frame placed by its timestamp), so sound and picture stay in sync; the other commands use "
         "its frames in decode order at %.4g fps: convert it first if timing matters there "
         "(ffmpeg -i IN -fps_mode cfr -r %.4g OUT.mp4).",
         path, average, nominal, nominal, fps, nominal,
