@@ -108,16 +108,16 @@ def probe(plan: ClipPlan, settings: BatchSettings, fingerprint: str) -> dict:
         if depth is not None and not depth.exists():
             raise InputError(f"no depth maps for this clip: expected '{depth}' (a folder of per-frame maps named "
                              f"after the clip, under --depth-root {settings.depth_root})")
-        decoded = None
-        if clip.nominal_fps is not None and depth is None:  # external maps count the clip's frames as they are
-            decoded = constant_rate_copy(plan, clip)
-            clip = probe_clip(decoded)
         probed = plan.probed(frames=clip.frame_count, fps=clip.fps, width=clip.width, height=clip.height,
-                             has_audio=clip.has_audio, source_hash=source_hash, decoded=decoded)
+                             has_audio=clip.has_audio, source_hash=source_hash)
         marker = read_marker(plan.marker_path(settings))
         skip = (not settings.force and marker is not None and marker.get("fingerprint") == fingerprint
                 and marker.get("source_hash") == source_hash
                 and all(p.exists() for p in probed.output_paths(settings)))
+        if not skip and clip.nominal_fps is not None and depth is None:  # external maps count the clip's own frames
+            decoded = constant_rate_copy(plan, clip)
+            clip = probe_clip(decoded)
+            probed = probed.probed(frames=clip.frame_count, fps=clip.fps, decoded=decoded)
         return {"plan": probed, "skip": skip, "frames": clip.frame_count}
 
     return _guard("probe", plan, None, run)
