@@ -18,3 +18,20 @@ def flash_clip(ffmpeg_run, path, seconds: float = 3.5, flash_s: float = 2.5):
 
 def flash_frames(path, **kw) -> list[int]:
     return [k for k, f in enumerate(iter_frames(path, **kw)) if f.mean() > 60]
+
+
+def assert_in_sync(out, flash_s: float = 2.5, fps: float = 30.0, frames: int = 105) -> None:
+    """``out`` (a render of :func:`flash_clip`) is at the constant ``fps`` with its sound, and its
+    flash is at ``flash_s`` (within a frame) and on its beep (within 50 ms)."""
+    import numpy as np
+    import pytest
+
+    from rvr_addon.io.video import probe_clip
+    from rvr_addon.laaf.audio import SAMPLE_RATE, decode_audio
+
+    info = probe_clip(out)
+    assert info.fps == pytest.approx(fps) and info.has_audio and abs(info.frame_count - frames) <= 1
+    seen = next(k for k, f in enumerate(iter_frames(out)) if f.mean() > 60) / info.fps
+    sound = np.abs(decode_audio(out))
+    beep_s = int(np.argmax(sound > 0.5 * sound.max())) / SAMPLE_RATE
+    assert seen == pytest.approx(flash_s, abs=1.05 / fps) and abs(seen - beep_s) <= 0.05, (seen, beep_s)
