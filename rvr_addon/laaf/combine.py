@@ -175,10 +175,10 @@ class StepDetector:
     """
 
     def __init__(self, min_step: float = 0.5, r: int = 3, min_gap: int = 6, sigma_r: float = 0.4,
-                 causal: bool = False, min_support: int = 2, filter_radius: int = 2, sigma_t: float = 1.5) -> None:
+                 causal: bool = False, min_support: int = 2, filter_radius: int = 2) -> None:
         """r: frames each side a step's two levels are measured over; min_gap: frames between two
-        steps; sigma_r: the bilateral filter's range sigma (disparity units); filter_radius,
-        sigma_t: its window and time sigma (frames); min_support: frames the new level must be
+        steps; sigma_r: the bilateral filter's range sigma (disparity units); filter_radius: its
+        window (frames; its time sigma is 0.75 of it); min_support: frames the new level must be
         measured on."""
         self.min_step = min_step
         self.r = r
@@ -187,7 +187,7 @@ class StepDetector:
         self.causal = causal
         self.min_support = min_support
         self.filter_radius = int(filter_radius)
-        self.sigma_t = float(sigma_t)
+        self.sigma_t = 0.75 * self.filter_radius
         self.delay = (r - 1) if causal else (2 * r - 1 + self.filter_radius)
         self.raw: list[float] = []
         self.held: list[float] = []

@@ -228,8 +228,7 @@ class AutofocusJob:
         self.step_detector = StepDetector(min_step=s.min_step, r=frames_at(3, self.fps),
                                           min_gap=max(frames_at(4, self.fps), self.pull.pull_frames // 2),
                                           causal=self.causal, min_support=frames_at(2, self.fps),
-                                          filter_radius=frames_at(2, self.fps),
-                                          sigma_t=0.75 * frames_at(2, self.fps))
+                                          filter_radius=frames_at(2, self.fps))
         # look-ahead: the persistence of a new level is checked in frames the window still sees before
         # the pull must start; causal: not at all (waiting for it would make every pull later still)
         spare = (0 if self.causal else

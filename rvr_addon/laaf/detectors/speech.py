@@ -101,7 +101,7 @@ import numpy as np
 
 from ..audio import VOICE_CHANGE_RANGE, AudioTrack, NoAudio, analyse_audio, decode_audio
 from ..nft import Box
-from ..timebase import REFERENCE_FPS, frames_at
+from ..timebase import REFERENCE_FPS, frames_at, reference_frames_per_frame
 from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
 from .face import FaceDetector
 from .mediapipe_face import MediaPipeFaces, mediapipe_importable
@@ -251,7 +251,7 @@ class SpeechDetector(FocusDetector):
         self.lag_min_windows_s = float(lag_min_windows_s)
         self.none_score = float(none_score)
         # the costs are frames of evidence at COST_REFERENCE_FPS: the same seconds at any frame rate
-        per_frame = float(fps) / COST_REFERENCE_FPS if fps and fps > 0 else 1.0
+        per_frame = 1.0 / reference_frames_per_frame(fps)
         self.switch_cost = float(switch_cost) * per_frame
         self.pause_cost = float(pause_cost) * per_frame
         self.onset_frames = max(1, int(round(onset_s * fps)))
@@ -261,18 +261,16 @@ class SpeechDetector(FocusDetector):
         self.smooth = 0 if causal else max(0, int(round(smooth_s * fps)))
         self.mesh_every = max(1, int(mesh_every))
         self.motion_weight = float(motion_weight)
-        seg_margin = frames_at(max(0, int(seg_margin)), fps, 0)  # frames at 25 fps (timebase)
-        sync_margin = frames_at(max(0, int(sync_margin)), fps, 0)
-        self.seg_margin = seg_margin
+        self.seg_margin = frames_at(max(0, int(seg_margin)), fps, 0)  # frames at 25 fps (timebase)
+        self.sync_margin = frames_at(max(0, int(sync_margin)), fps, 0)
         self.mesh = MediaPipeFaces(detect=False) if mouth == "mesh" or (mouth == "auto" and mediapipe_importable()) \
             else None
         self._mesh_required = mouth == "mesh"
         # a frame's evidence needs its window's future; its decision the smoother's too
-        self.lookahead_frames = 0 if causal else max(self.radius + (max(0, int(sync_margin)) if sync else 0),
+        self.lookahead_frames = 0 if causal else max(self.radius + (self.sync_margin if sync else 0),
                                                      self.mouth_radius + self.max_lag + self.smooth,
-                                                     max(0, int(seg_margin)) + self.max_lag + self.smooth)
+                                                     self.seg_margin + self.max_lag + self.smooth)
         self.sync_min_corr = sync_min_corr
-        self.sync_margin = max(0, int(sync_margin))
         self.sync_box_frac = sync_box_frac
         self.sync_face_gap = max(0, int(round(sync_face_gap_s * fps)))
         self.synchrony = SynchronyLocaliser(keep_frames=8 * self.radius + 4 * self.sync_margin + 8) if sync else None
