@@ -142,7 +142,7 @@ def read_clip(s, setup: "ClipSetup", audio: "AudioTrack | None" = None) -> tuple
                 motion.append(float(np.mean(np.abs(gray.astype(np.int16) - prev[-gap]) > MOTION_LEVEL)))
             prev = (prev + [gray.astype(np.int16)])[-gap:]
             if face is not None and j % max(run // PROBE_FACES, 1) == 0:
-                boxes = face.detect(AnalysisFrame(a + j, small, gray, None, setup.scale, setup.fps))
+                boxes = face.detect(AnalysisFrame(a + j, small, gray, None, setup.scale, setup.fps, native=rgb))
                 probed.append(a + j)
                 if boxes:
                     with_face += 1

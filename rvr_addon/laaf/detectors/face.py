@@ -123,18 +123,20 @@ class FaceBackend:
                 raise RuntimeError(f"OpenCV's Haar cascades are missing from {root}; reinstall opencv-contrib")
         _announce(self.kind, why)
 
-    def detect_frame(self, gray: np.ndarray, rgb: np.ndarray | None = None) -> list[Box]:
+    def detect_frame(self, gray: np.ndarray, rgb: np.ndarray | None = None,
+                     native: np.ndarray | None = None) -> list[Box]:
         """Face boxes (x, y, w, h) px of a frame: MediaPipe sees ``rgb`` (the grey frame when
-        None), dlib and Haar the grey one (:meth:`detect`)."""
+        None) and, for small faces, tiles of ``native`` (the same frame decoded at its own size;
+        None: of ``rgb``), dlib and Haar the grey one (:meth:`detect`)."""
         if self.kind == "mediapipe" and rgb is not None:
-            return self._mediapipe(rgb)
+            return self._mediapipe(rgb, native)
         return self.detect(gray)
 
-    def _mediapipe(self, rgb: np.ndarray) -> list[Box]:
+    def _mediapipe(self, rgb: np.ndarray, native: np.ndarray | None = None) -> list[Box]:
         # MediaPipe finds faces well below dlib's 80 px window: keep boxes of >= 8 px (a 32 px face
         # at 4x the analysis size, where the face mesh still reads a mouth on the native frame)
         before = self.mediapipe.rejected
-        boxes = [b for b, _ in self.mediapipe.detect(rgb)]
+        boxes = [b for b, _ in self.mediapipe.detect(rgb, native)]
         self.rejected += self.mediapipe.rejected - before
         return [b for b in _nms(boxes) if min(b[2], b[3]) >= min(8.0, self.min_face_px * 0.6)]
 
@@ -222,7 +224,7 @@ class FaceDetector(FocusDetector):
 
     def detect(self, frame: AnalysisFrame) -> list[Box]:
         """Face boxes (analysis px) of one frame, largest first (the order tracks are matched in)."""
-        return sorted(self.backend.detect_frame(frame.gray, frame.rgb), key=lambda b: -b[2] * b[3])
+        return sorted(self.backend.detect_frame(frame.gray, frame.rgb, frame.native), key=lambda b: -b[2] * b[3])
 
     def measure(self, frame: AnalysisFrame, prev: AnalysisFrame | None, faces: list[Box]) -> list[Box] | None:
         """The frame's face boxes on detection frames (t a multiple of ``every``), else None."""

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from ...depth import face_check
+from ...depth import face_check, face_tiles
 from ..nft import Box
 
 
@@ -55,18 +55,21 @@ class MediaPipeFaces:
 
     min_score: the face detector's threshold. detect / mesh: which models load (first use).
     close_range: where the full-range model finds no face, the short-range one looks again
-    (module docstring), keeping its boxes of score >= close_min_score. verify: keep only the
-    boxes ``face_check`` confirms (person segmentation, else the face mesh); ``rejected`` counts
-    the boxes dropped so far.
+    (module docstring), keeping its boxes of score >= close_min_score. tiles: the full-range model
+    also looks at overlapping tiles of the frame for faces too small for it in the whole frame
+    (:mod:`rvr_addon.depth.face_tiles`). verify: keep only the boxes ``face_check`` confirms (person
+    segmentation, else the face mesh); ``rejected`` counts the boxes dropped so far.
     """
 
     def __init__(self, min_score: float = 0.5, detect: bool = True, mesh: bool = True,
-                 close_range: bool = True, close_min_score: float = 0.75, verify: bool = True) -> None:
+                 close_range: bool = True, close_min_score: float = 0.75, verify: bool = True,
+                 tiles: bool = True) -> None:
         self.min_score = float(min_score)
         self.close_min_score = float(close_min_score)
         self._want = {"faces": detect, "mesh": mesh}
         self.close_range = bool(close_range) and detect
         self.verify = bool(verify) and detect
+        self.tiles = bool(tiles) and detect
         self.rejected = 0
         self._models: dict[str, Any] | None = None
 
@@ -107,10 +110,12 @@ class MediaPipeFaces:
         except Exception:  # pragma: no cover - interpreter shutdown
             pass
 
-    def detect(self, rgb: np.ndarray) -> list[tuple[Box, float]]:
+    def detect(self, rgb: np.ndarray, native: np.ndarray | None = None) -> list[tuple[Box, float]]:
         """Face boxes (x, y, w, h) px of an (H, W, 3) uint8 RGB frame with their scores: the
-        full-range model's, or where it finds none the short-range model's (``close_range``);
-        with ``verify`` only the boxes ``face_check`` confirms. Where neither finds a face but the
+        full-range model's, or where it finds none the short-range model's (``close_range``), and
+        with ``tiles`` the faces too small for either that the full-range model finds on tiles of
+        ``native`` (the same frame at a larger size, e.g. the decoded one; None: tiles of ``rgb``);
+        with ``verify`` only the boxes ``face_check`` confirms. Where none finds a face but the
         person matte says someone is there (``face_check.worth_turning``), the full-range model
         searches the frame turned a quarter turn each way (a face on its side); such a face must
         also be one the face mesh reads in the turned frame (a bicycle wheel passes the detector
@@ -122,6 +127,8 @@ class MediaPipeFaces:
         if not out and "faces_close" in models:
             out = self._confirmed([(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
                                    if score >= self.close_min_score], rgb, matte)
+        if self.tiles:
+            out += self._tiled(models, rgb, native, [b for b, _ in out], matte)
         if not out and self.verify and face_check.worth_turning(self._matte(rgb, matte)):
             for turn in face_check.TURNS:
                 view = np.ascontiguousarray(np.rot90(rgb, turn))
@@ -129,6 +136,24 @@ class MediaPipeFaces:
                     if self._mesh_finds(view, box):
                         out.append((self._unturned(box, turn, view.shape), score))
         return out
+
+    def _tiled(self, models: dict[str, Any], rgb: np.ndarray, native: np.ndarray | None, known: list[Box],
+               matte: list[np.ndarray | None]) -> list[tuple[Box, float]]:
+        """The faces the full-range model finds on tiles of ``native`` (else ``rgb``) that are none of
+        ``known``, in ``rgb`` px; with ``verify`` those face_check confirms, the face mesh reading
+        each on ``native``."""
+        image = rgb if native is None else np.ascontiguousarray(native)
+        k = rgb.shape[1] / image.shape[1]  # image px -> rgb px
+        found = face_tiles.tiled_boxes(lambda tile: self._boxes(models["faces"].process(tile), tile.shape), image)
+        found = face_tiles.new_boxes([((x * k, y * k, w * k, h * k), s) for (x, y, w, h), s in found], known)
+        if not self.verify or not found:
+            return found
+        boxes = [b for b, _ in found]
+        kept = face_check.confirmed_faces(
+            boxes, self._matte(rgb, matte),
+            lambda i: self._mesh_finds(image, tuple(v / k for v in boxes[i])))  # type: ignore[arg-type]
+        self.rejected += len(found) - len(kept)
+        return [found[i] for i in kept]
 
     def _matte(self, rgb: np.ndarray, matte: list[np.ndarray | None]) -> np.ndarray | None:
         """The frame's person matte (0..1), segmented once per frame (``matte`` caches it)."""

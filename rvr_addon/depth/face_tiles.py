@@ -1,0 +1,111 @@
+"""Small faces: a face detector run on overlapping square tiles of a frame.
+
+MediaPipe's full-range face detector sees every picture at 192 x 192 px, whatever its size. In a
+whole wide frame a face under about a twelfth of the frame's width (a wide shot of two people at a
+table: faces of 40-60 px in a 960 px frame) is a dozen model pixels and is missed, on the native
+frame as on a small copy. Cut into squares of the frame's short side, and of half of it, the same
+face is 2-4x larger to the model and is found (the 0.3-scale "wide shot" copies of the real
+conversation composites: no face on any probed frame of the whole frame, the near face on every
+frame and the far one on half of them in tiles).
+
+:func:`tile_grid` places the squares (neighbours overlap by a third of a side, so a face up to a
+third of a side lies whole in one of them); :func:`tiled_boxes` runs a detector on each and maps its
+boxes back, dropping a box that touches a tile's inner edge (a face cut by the edge; the overlap
+holds it whole in a neighbour); :func:`merge_boxes` keeps the best-scoring of overlapping boxes.
+Functions over arrays and a detector callable; boxes are (x, y, w, h) px.
+"""
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+Box = tuple[float, float, float, float]
+Found = list[tuple[Box, float]]
+
+TILE_LEVELS = 2
+"""Tile sides: the frame's short side, then half of it (each level halves the side)."""
+MIN_TILE_PX = 128
+"""Tiles smaller than this (px of the picture they are cut from) are not run: too few pixels."""
+TILE_OVERLAP = 1.0 / 3.0
+"""Neighbouring tiles share at least this fraction of a side."""
+EDGE_PX = 2.0
+"""A box within this many px of a tile's inner edge was cut by it and is dropped."""
+MERGE_IOU = 0.3
+"""Boxes overlapping more than this (intersection over union) are one face."""
+
+
+def tile_grid(h: int, w: int, side: int, overlap: float = TILE_OVERLAP) -> list[tuple[int, int]]:
+    """Top-left corners (x0, y0) px of squares of ``side`` px covering an (h, w) picture, spaced
+    evenly with neighbours sharing at least ``overlap`` of a side; one square per axis where the
+    picture is no longer than ``side`` (the square is then clipped by the picture)."""
+
+    def starts(length: int) -> list[int]:
+        if length <= side:
+            return [0]
+        step = side * (1.0 - overlap)
+        n = int(np.ceil((length - side) / step)) + 1
+        return sorted({int(round(v)) for v in np.linspace(0, length - side, n)})
+
+    return [(x0, y0) for y0 in starts(h) for x0 in starts(w)]
+
+
+def tile_sides(h: int, w: int, levels: int = TILE_LEVELS, min_px: int = MIN_TILE_PX) -> list[int]:
+    """The tile sides (px) for an (h, w) picture: its short side halved ``levels - 1`` times, each at
+    least ``min_px``."""
+    side, out = min(h, w), []
+    for _ in range(max(levels, 0)):
+        if side < min_px:
+            break
+        out.append(int(side))
+        side //= 2
+    return out
+
+
+def tiled_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, levels: int = TILE_LEVELS,
+                min_px: int = MIN_TILE_PX) -> Found:
+    """Faces found by ``detect`` (an (h, w, 3) uint8 picture -> boxes in its px with scores) on the
+    tiles of ``image`` (:func:`tile_sides`, :func:`tile_grid`), in ``image`` px, merged
+    (:func:`merge_boxes`). A box touching a tile's inner edge is dropped."""
+    h, w = image.shape[:2]
+    found: Found = []
+    for side in tile_sides(h, w, levels, min_px):
+        if side >= max(h, w):  # one tile = the whole picture: the caller's own pass
+            continue
+        for x0, y0 in tile_grid(h, w, side):
+            tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
+            th, tw = tile.shape[:2]
+            for (bx, by, bw, bh), score in detect(tile):
+                inner_cut = ((x0 > 0 and bx <= EDGE_PX) or (y0 > 0 and by <= EDGE_PX)
+                             or (x0 + tw < w and bx + bw >= tw - EDGE_PX) or (y0 + th < h and by + bh >= th - EDGE_PX))
+                if not inner_cut:
+                    found.append(((bx + x0, by + y0, bw, bh), score))
+    return merge_boxes(found)
+
+
+def iou(a: Box, b: Box) -> float:
+    """Intersection over union of two (x, y, w, h) boxes."""
+    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    inter = ix * iy
+    union = a[2] * a[3] + b[2] * b[3] - inter
+    return inter / union if union > 0 else 0.0
+
+
+def merge_boxes(found: Found, thresh: float = MERGE_IOU) -> Found:
+    """The best-scoring box of each group of boxes overlapping by more than ``thresh`` (IoU)."""
+    kept: Found = []
+    for box, score in sorted(found, key=lambda f: -f[1]):
+        if all(iou(box, k) <= thresh for k, _ in kept):
+            kept.append((box, score))
+    return kept
+
+
+def new_boxes(found: Found, known: Sequence[Box], thresh: float = MERGE_IOU) -> Found:
+    """The boxes of ``found`` that are none of ``known`` (IoU above ``thresh``, or centre inside one)."""
+
+    def same(a: Box, b: Box) -> bool:
+        cx, cy = a[0] + a[2] / 2, a[1] + a[3] / 2
+        return iou(a, b) > thresh or (b[0] <= cx <= b[0] + b[2] and b[1] <= cy <= b[1] + b[3])
+
+    return [(b, s) for b, s in found if not any(same(b, k) for k in known)]
