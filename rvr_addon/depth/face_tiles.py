@@ -11,7 +11,8 @@ frame and the far one on half of them in tiles).
 :func:`tile_grid` places the squares (neighbours overlap by a third of a side, so a face up to a
 third of a side lies whole in one of them); :func:`tiled_boxes` runs a detector on each and maps its
 boxes back, dropping a box that touches a tile's inner edge (a face cut by the edge; the overlap
-holds it whole in a neighbour); :func:`merge_boxes` keeps the best-scoring of overlapping boxes.
+holds it whole in a neighbour) or one the coarser pass would have found itself (:data:`MAX_BOX_FRAC`);
+:func:`merge_boxes` keeps the best-scoring of overlapping boxes.
 Functions over arrays and a detector callable; boxes are (x, y, w, h) px.
 """
 from __future__ import annotations
@@ -31,6 +32,11 @@ TILE_OVERLAP = 1.0 / 3.0
 """Neighbouring tiles share at least this fraction of a side."""
 EDGE_PX = 2.0
 """A box within this many px of a tile's inner edge was cut by it and is dropped."""
+MAX_BOX_FRAC = 1.0 / 6.0
+"""A tile's box wider or taller than this fraction of the coarser pass's side (the whole picture's
+long side for the first level, the level before for the next) is dropped: the coarser pass finds
+faces that large itself (a whole 960 px frame: 133 px faces found, 56 px ones missed), so a box
+that large found only in a tile is most likely not a face (hands on a restaurant table)."""
 MERGE_IOU = 0.3
 """Boxes overlapping more than this (intersection over union) are one face."""
 
@@ -66,19 +72,22 @@ def tiled_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, levels
                 min_px: int = MIN_TILE_PX) -> Found:
     """Faces found by ``detect`` (an (h, w, 3) uint8 picture -> boxes in its px with scores) on the
     tiles of ``image`` (:func:`tile_sides`, :func:`tile_grid`), in ``image`` px, merged
-    (:func:`merge_boxes`). A box touching a tile's inner edge is dropped."""
+    (:func:`merge_boxes`). A box touching a tile's inner edge is dropped, and one larger than
+    :data:`MAX_BOX_FRAC` of the coarser pass's side."""
     h, w = image.shape[:2]
     found: Found = []
+    coarser = max(h, w)
     for side in tile_sides(h, w, levels, min_px):
         if side >= max(h, w):  # one tile = the whole picture: the caller's own pass
             continue
+        largest, coarser = coarser * MAX_BOX_FRAC, side
         for x0, y0 in tile_grid(h, w, side):
             tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
             th, tw = tile.shape[:2]
             for (bx, by, bw, bh), score in detect(tile):
                 inner_cut = ((x0 > 0 and bx <= EDGE_PX) or (y0 > 0 and by <= EDGE_PX)
                              or (x0 + tw < w and bx + bw >= tw - EDGE_PX) or (y0 + th < h and by + bh >= th - EDGE_PX))
-                if not inner_cut:
+                if not inner_cut and max(bw, bh) <= largest:
                     found.append(((bx + x0, by + y0, bw, bh), score))
     return merge_boxes(found)
 

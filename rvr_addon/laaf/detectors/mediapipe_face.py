@@ -128,7 +128,7 @@ class MediaPipeFaces:
             out = self._confirmed([(b, score) for b, score in self._boxes(models["faces_close"].process(rgb), rgb.shape)
                                    if score >= self.close_min_score], rgb, matte)
         if self.tiles:
-            out += self._tiled(models, rgb, native, [b for b, _ in out], matte)
+            out += self._tiled(models, rgb, native, [b for b, _ in out])
         if not out and self.verify and face_check.worth_turning(self._matte(rgb, matte)):
             for turn in face_check.TURNS:
                 view = np.ascontiguousarray(np.rot90(rgb, turn))
@@ -137,23 +137,21 @@ class MediaPipeFaces:
                         out.append((self._unturned(box, turn, view.shape), score))
         return out
 
-    def _tiled(self, models: dict[str, Any], rgb: np.ndarray, native: np.ndarray | None, known: list[Box],
-               matte: list[np.ndarray | None]) -> list[tuple[Box, float]]:
+    def _tiled(self, models: dict[str, Any], rgb: np.ndarray, native: np.ndarray | None,
+               known: list[Box]) -> list[tuple[Box, float]]:
         """The faces the full-range model finds on tiles of ``native`` (else ``rgb``) that are none of
-        ``known``, in ``rgb`` px; with ``verify`` those face_check confirms, the face mesh reading
-        each on ``native``."""
+        ``known``, in ``rgb`` px; with ``verify`` only those the face mesh reads on ``native`` (not
+        the person matte: it covers the person's hands too, which a tile can take for a face)."""
         image = rgb if native is None else np.ascontiguousarray(native)
         k = rgb.shape[1] / image.shape[1]  # image px -> rgb px
         found = face_tiles.tiled_boxes(lambda tile: self._boxes(models["faces"].process(tile), tile.shape), image)
         found = face_tiles.new_boxes([((x * k, y * k, w * k, h * k), s) for (x, y, w, h), s in found], known)
         if not self.verify or not found:
             return found
-        boxes = [b for b, _ in found]
-        kept = face_check.confirmed_faces(
-            boxes, self._matte(rgb, matte),
-            lambda i: self._mesh_finds(image, tuple(v / k for v in boxes[i])))  # type: ignore[arg-type]
+        kept = [(box, score) for box, score in found
+                if self._mesh_finds(image, (box[0] / k, box[1] / k, box[2] / k, box[3] / k))]
         self.rejected += len(found) - len(kept)
-        return [found[i] for i in kept]
+        return kept
 
     def _matte(self, rgb: np.ndarray, matte: list[np.ndarray | None]) -> np.ndarray | None:
         """The frame's person matte (0..1), segmented once per frame (``matte`` caches it)."""
