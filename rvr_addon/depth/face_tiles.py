@@ -17,7 +17,7 @@ Functions over arrays and a detector callable; boxes are (x, y, w, h) px.
 """
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -93,6 +93,42 @@ def tiled_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, levels
                 if not inner_cut and max(bw, bh) <= largest:
                     found.append(((bx + x0, by + y0, bw, bh), score))
     return merge_boxes(found)
+
+
+def around_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, boxes: Sequence[Box],
+                 min_px: int = MIN_TILE_PX, scale: float = 6.0) -> Found:
+    """Faces found by ``detect`` on one square tile around each of ``boxes`` (x, y, w, h px of
+    ``image``: faces found in tiles on an earlier frame), ``scale`` times the box's larger side and
+    at least ``min_px`` (at most the picture's short side), centred on it and moved inside the
+    picture; in ``image`` px, merged. One detection per box instead of a whole tiling: a video's
+    small faces are followed from frame to frame this way between two whole tilings."""
+    h, w = image.shape[:2]
+    found: Found = []
+    for bx, by, bw, bh in boxes:
+        side = int(min(max(min_px, scale * max(bw, bh)), min(h, w)))
+        x0 = int(np.clip(round(bx + bw / 2 - side / 2), 0, w - side))
+        y0 = int(np.clip(round(by + bh / 2 - side / 2), 0, h - side))
+        tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
+        for (fx, fy, fw, fh), score in detect(tile):
+            inner_cut = ((x0 > 0 and fx <= EDGE_PX) or (y0 > 0 and fy <= EDGE_PX)
+                         or (x0 + side < w and fx + fw >= side - EDGE_PX) or (y0 + side < h and fy + fh >= side - EDGE_PX))
+            if not inner_cut and max(fw, fh) <= max(h, w) * MAX_BOX_FRAC:
+                found.append(((fx + x0, fy + y0, fw, fh), score))
+    return merge_boxes(found)
+
+
+def detection_boxes(result: Any, shape: tuple[int, ...]) -> Found:
+    """A MediaPipe face-detection result's boxes (x, y, w, h) px in a picture of ``shape``, clipped to
+    it, with their scores (boxes under 2 px dropped)."""
+    h, w = shape[:2]
+    out: Found = []
+    for det in result.detections or []:
+        b = det.location_data.relative_bounding_box
+        x0, y0 = max(0.0, b.xmin * w), max(0.0, b.ymin * h)
+        x1, y1 = min(float(w), (b.xmin + b.width) * w), min(float(h), (b.ymin + b.height) * h)
+        if x1 - x0 >= 2 and y1 - y0 >= 2:
+            out.append(((x0, y0, x1 - x0, y1 - y0), float(det.score[0]) if det.score else 0.0))
+    return out
 
 
 def iou(a: Box, b: Box) -> float:

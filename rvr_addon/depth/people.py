@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from ..errors import InputError
-from . import face_check
+from . import face_check, face_tiles
 from .cues import DEFAULT_HFOV_DEG, CueMap, focal_px
 
 MEDIAPIPE_PIN = "mediapipe==0.10.14"
@@ -78,6 +78,10 @@ TURN_RETRY_FRAMES = 4
 frame in this many (a person whose face is not visible at all, back turned, would cost the cue two
 more face detections on every frame: 10 -> 25-30 ms; now 12-14 ms); a face found turned keeps it
 searching every frame."""
+TILE_EVERY = 5
+"""In a clip the whole frame is tiled for small faces (:mod:`~rvr_addon.depth.face_tiles`, 18
+detections at 720p and 1080p) on one frame in this many; on the frames between, only a tile around
+each small face already found is looked at (one detection each)."""
 MIN_MATTE = 0.02
 """Matte values below this are taken as 0 (outside people)."""
 MAX_DISTANCE_M = 50.0
@@ -288,12 +292,14 @@ class PeopleDetector:
 
     ``hfov_deg``: the camera's field of view (deg) across the frame's long side, for the focal length in px.
     ``analysis_long_side``: long side (px) the models work at. ``min_face_score``: the face
-    detector's threshold. ``max_faces``: faces kept per frame (largest first). Use as a context
-    manager or call :meth:`close`; the models load on the first frame.
+    detector's threshold. ``max_faces``: faces kept per frame (largest first). ``tiles``: also look
+    for faces too small for the whole frame on tiles of the full-size frame
+    (:mod:`~rvr_addon.depth.face_tiles`; such a face must be one the face mesh reads; needs
+    ``face_mesh``). Use as a context manager or call :meth:`close`; the models load on the first frame.
     """
 
     def __init__(self, hfov_deg: float = DEFAULT_HFOV_DEG, analysis_long_side: int = ANALYSIS_LONG_SIDE,
-                 min_face_score: float = 0.5, max_faces: int = 6, face_mesh: bool = True) -> None:
+                 min_face_score: float = 0.5, max_faces: int = 6, face_mesh: bool = True, tiles: bool = True) -> None:
         if not 1.0 < hfov_deg < 179.0:
             raise InputError(f"people cue: hfov_deg {hfov_deg} must be in (1, 179) degrees")
         if analysis_long_side < 64:
@@ -303,10 +309,13 @@ class PeopleDetector:
         self.min_face_score = float(min_face_score)
         self.max_faces = int(max_faces)
         self.use_face_mesh = bool(face_mesh)
+        self.tiles = bool(tiles) and self.use_face_mesh
         self._models: dict[str, Any] | None = None
         self._recent: deque[list[tuple[float, float, float, float]]] = deque(maxlen=face_check.FOLLOW_FRAMES)
         """The confirmed face boxes (analysis px) of the last calls, newest last: frames come in order."""
         self._turn_wait = 0
+        self._frames = 0  # frames seen (the whole frame is tiled on one in TILE_EVERY)
+        self._small: list[tuple[float, float, float, float]] = []  # small faces (x, y, w, h px) of the last frame
         """Frames until a turned search may run again (:data:`TURN_RETRY_FRAMES`)."""
         self._pending: list[tuple[float, float, float, float]] | None = None
         """The previous call's boxes that only the matte covered (``face_check.confirmed_faces``'s
@@ -391,6 +400,18 @@ class PeopleDetector:
                 faces.append({"box": (x0, y0, x1, y1), "score": float(det.score[0]) if det.score else 0.0,
                               "box_w": float(box.width * tw), "turned": turn,
                               "turned_box": (rel[0] * tw, rel[1] * th, rel[2] * tw, rel[3] * th)})
+        if not rotated and self.tiles and "mesh" in models:  # small faces: tiles of the full-size frame
+            known = [(f["box"][0], f["box"][1], f["box"][2] - f["box"][0], f["box"][3] - f["box"][1]) for f in faces]
+
+            def detect(tile: np.ndarray) -> list:
+                return face_tiles.detection_boxes(models["faces"].process(tile), tile.shape)
+
+            whole = self._frames % TILE_EVERY == 0
+            self._frames += 1
+            found = face_tiles.tiled_boxes(detect, frame) if whole else face_tiles.around_boxes(detect, frame, self._small)
+            for (x, y, bw, bh), score in face_tiles.new_boxes(found, known):
+                faces.append({"box": (x, y, x + bw, y + bh), "score": score, "box_w": bw, "turned": 0,
+                              "turned_box": (x, y, x + bw, y + bh), "tiled": True})
         faces.sort(key=lambda f: -f["box_w"])
         faces = faces[:self.max_faces]
         for face in faces:
@@ -402,8 +423,11 @@ class PeopleDetector:
                 if points is not None:
                     face["mesh"] = True
                     face["width"], face["mouth"] = face_width_3d(points), mouth_opening(points)
-        if rotated and "mesh" in models:
-            faces = [f for f in faces if f["mesh"]]
+        if "mesh" in models:  # a face found turned or in a tile must be one the mesh reads
+            faces = [f for f in faces if f["mesh"] or not (rotated or f.get("tiled"))]
+        if not rotated:
+            self._small = [(f["box"][0], f["box"][1], f["box"][2] - f["box"][0], f["box"][3] - f["box"][1])
+                           for f in faces if f.get("tiled")]
         for face in faces:
             face["distance"] = float(np.clip(focal_px(max(w, h), self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))

@@ -62,6 +62,10 @@ class DepthPlan:
 
             out["parallax_check"] = (f"plane sweep; pair flow patches every {FLOW_PATCH_STRIDE} px; "
                                      f"memory flow {MEMORY_FLOW_PRESET}")
+        if "people" in self.cues:  # since the seventh session of 2026-12-07 (caches made before recompute)
+            from .people import TILE_EVERY
+
+            out["people_faces"] = f"small faces in tiles (whole frame every {TILE_EVERY} frames)"
         return out
 
     def summary(self) -> str:

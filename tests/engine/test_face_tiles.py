@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from rvr_addon.depth.face_tiles import (MAX_BOX_FRAC, MIN_TILE_PX, TILE_OVERLAP, iou, merge_boxes, new_boxes,
+from rvr_addon.depth.face_tiles import (MAX_BOX_FRAC, around_boxes, MIN_TILE_PX, TILE_OVERLAP, iou, merge_boxes, new_boxes,
                                         tile_grid, tile_sides, tiled_boxes)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -84,6 +84,16 @@ def test_a_small_face_is_found_in_a_tile_at_its_place_in_the_frame_and_a_cut_one
     assert len(calls) == 1 + len(tile_grid(h, w, 720)) + len(tile_grid(h, w, 360)) == 19  # the whole frame, 3 + 15 tiles
 
 
+def test_a_small_face_found_before_is_followed_with_one_tile_around_it():
+    h, w = 720, 1280
+    frame = _marked_frame(h, w)
+    face = (1230.0, 660.0, 40.0, 40.0)  # in the corner: the tile is moved inside the frame
+    detect, calls = _fake_detector([face])
+    assert [b for b, _ in around_boxes(detect, frame, [(1220.0, 650.0, 38.0, 38.0)])] == [face]
+    assert len(calls) == 1 and calls[0] == (MIN_TILE_PX, MIN_TILE_PX)
+    assert around_boxes(detect, frame, []) == []
+
+
 def test_a_box_the_coarser_pass_would_have_found_is_not_taken_from_a_tile():
     """Hands on a restaurant table passed the detector in a tile: a box larger than a sixth of the
     coarser pass's side is dropped (the coarser pass finds faces that large itself)."""
@@ -141,3 +151,26 @@ def test_laaf_finds_the_face_of_a_wide_shot_that_the_whole_frame_misses():
     cx, cy = (x + w / 2) / k, (y + h / 2) / k
     assert px <= cx <= px + pw and py <= cy <= py + ph * 0.6  # on her head, in the upper part of her region
     assert 25 <= w / k <= 60 and score >= 0.5
+
+
+@pytest.mark.skipif(not HAVE_MP, reason="mediapipe is not installed (scripts/setup.sh)")
+@pytest.mark.skipif(not GRID.is_file(), reason="the real clips of ../shared/data/clips are not here")
+def test_the_people_depth_cue_gives_the_person_of_a_wide_shot_a_layer_on_every_frame():
+    """The people cue tiles the whole frame on one frame in TILE_EVERY and follows the small faces it
+    found with one tile each on the frames between: the small GRID speaker is a person layer on each
+    of 2 x TILE_EVERY frames, at a distance her face's size gives (about 5 m for a 40 px face at a
+    phone's field of view), on her, and nowhere without the tiles."""
+    from rvr_addon.depth.people import TILE_EVERY, PeopleDetector
+
+    frame, (px, py, pw, ph) = _wide_shot(0.12)
+    with PeopleDetector(tiles=False) as det:
+        assert det(frame).persons == []
+    with PeopleDetector() as det:
+        answers = [det(frame) for _ in range(2 * TILE_EVERY)]
+    for answer in answers:
+        assert len(answer.persons) == 1
+        person = answer.persons[0]
+        x0, y0, x1, y1 = person.face_box
+        assert px <= (x0 + x1) / 2 <= px + pw and 2.5 <= person.distance_m <= 8.0
+        covered = answer.cue.confidence > 0.5
+        assert covered[int(py):, int(px):int(px + pw)].sum() > 0.8 * covered.sum() > 0  # the layer is on her

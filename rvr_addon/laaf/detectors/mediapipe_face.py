@@ -195,15 +195,7 @@ class MediaPipeFaces:
     @staticmethod
     def _boxes(result: Any, shape: tuple[int, ...]) -> list[tuple[Box, float]]:
         """A face-detection result's boxes (x, y, w, h) px in a frame of ``shape``, with scores."""
-        h, w = shape[:2]
-        out = []
-        for det in result.detections or []:
-            b = det.location_data.relative_bounding_box
-            x0, y0 = max(0.0, b.xmin * w), max(0.0, b.ymin * h)
-            x1, y1 = min(float(w), (b.xmin + b.width) * w), min(float(h), (b.ymin + b.height) * h)
-            if x1 - x0 >= 2 and y1 - y0 >= 2:
-                out.append(((x0, y0, x1 - x0, y1 - y0), float(det.score[0]) if det.score else 0.0))
-        return out
+        return face_tiles.detection_boxes(result, shape)
 
     def mouths(self, image: np.ndarray, boxes: list[Box], scale: float = 1.0) -> list[float | None]:
         """Mouth opening of each box (analysis px; ``image`` is at ``1 / scale`` of the analysis
