@@ -314,9 +314,11 @@ class PeopleDetector:
         self._recent: deque[list[tuple[float, float, float, float]]] = deque(maxlen=face_check.FOLLOW_FRAMES)
         """The confirmed face boxes (analysis px) of the last calls, newest last: frames come in order."""
         self._turn_wait = 0
-        self._frames = 0  # frames seen (the whole frame is tiled on one in TILE_EVERY)
-        self._small: list[tuple[float, float, float, float]] = []  # small faces (x, y, w, h px) of the last frame
         """Frames until a turned search may run again (:data:`TURN_RETRY_FRAMES`)."""
+        self._frames = 0
+        """Frames seen (the whole frame is tiled for small faces on one in :data:`TILE_EVERY`)."""
+        self._small: list[tuple[float, float, float, float]] = []
+        """The small faces (x, y, w, h, full-size px) the tiles found on the last frame: followed."""
         self._pending: list[tuple[float, float, float, float]] | None = None
         """The previous call's boxes that only the matte covered (``face_check.confirmed_faces``'s
         ``pending``); None before the first frame, where the matte alone confirms a face."""

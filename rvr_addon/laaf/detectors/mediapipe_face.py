@@ -21,6 +21,11 @@ face mesh finds a face in it (on the demo's street a sign scored 0.67, the real 
 a box, the mesh only for a box the segmentation rejects; a frame whose full-range boxes are all
 rejected gets the short-range model's look.
 
+Faces too small for the whole frame (the model sees any picture at 192 x 192 px: a face under
+about a twelfth of the frame's width, people at a table filmed from across the room) are looked
+for on overlapping tiles of the native frame (``tiles``, :mod:`rvr_addon.depth.face_tiles`); a face
+found only there must be one the face mesh reads (the person matte covers hands too).
+
 The mesh runs on the *native* frame where the caller has it (``AnalysisFrame.native``, present
 while a frame is measured): at a 320 px analysis width a face of an interview is ~50 px and its
 lip gap a few px; at 720p it is four times that. Boxes come and go in analysis px.
