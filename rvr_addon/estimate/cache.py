@@ -71,7 +71,7 @@ import numpy as np
 
 from ..errors import InputError, OutputError
 from ..io import lock as folder_lock
-from ..io.exr import read_exr, write_exr
+from ..io.exr import read_exr, read_exr_header, write_exr
 from ..io.paths import expand_sequence, replace_folder, temp_sibling
 
 log = logging.getLogger(__name__)
@@ -447,17 +447,33 @@ class ClipCache:
 
     # -- frames ---------------------------------------------------------------------------
     def is_valid(self, index: int, size: tuple[int, int]) -> bool:
-        """True if frame ``index`` (0-based) is recorded, intact and readable at size (w, h)."""
-        return self.read_valid(index, size) is not None
+        """True if frame ``index`` (0-based) is recorded, its file has the recorded size and its
+        EXR header holds every channel at size (w, h). Only the header is read: a re-run that reuses
+        a clip's depth read every frame whole to check it and then again to use it (a 720p frame
+        ~40 ms; 0.1 ms now). Pixel data that no longer decodes, or is not finite, is found by the
+        reader that meets it (:meth:`read_valid` checks the whole frame; the maps' reader names the
+        file)."""
+        path = frame_path(self.folder, index)
+        if not self._recorded_size(index, path):
+            return False
+        try:
+            names, dims = read_exr_header(path)
+        except InputError:
+            return False
+        return dims == (size[0], size[1]) and all(name in names for name in CHANNELS)
+
+    def _recorded_size(self, index: int, path: Path) -> bool:
+        """Whether frame ``index`` is recorded and its file ``path`` exists at a recorded size."""
+        recorded = self.frames.get(str(index + 1))
+        pending = (self.stabilized or {}).get("pending", {}).get(str(index + 1))
+        return recorded is not None and path.is_file() and path.stat().st_size in (recorded, pending)
 
     def read_valid(self, index: int, size: tuple[int, int]) -> dict[str, np.ndarray] | None:
         """Every channel of frame ``index``'s EXR ({name: (H, W) float32}) if it is recorded, intact
         and at size (w, h), else None: checking and reading in one read (:func:`split_channels`
         gives D, E)."""
         path = frame_path(self.folder, index)
-        recorded = self.frames.get(str(index + 1))
-        pending = (self.stabilized or {}).get("pending", {}).get(str(index + 1))
-        if recorded is None or not path.is_file() or path.stat().st_size not in (recorded, pending):
+        if not self._recorded_size(index, path):
             return None
         try:
             channels = read_exr(path)

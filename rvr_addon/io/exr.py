@@ -59,6 +59,31 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     return out
 
 
+def read_exr_header(path: str | Path) -> tuple[list[str], tuple[int, int]]:
+    """The channel names (as :func:`read_exr` names them) and the (width, height) px of an EXR
+    file's first part, from its header alone (the pixels are not read: ~0.1 ms a 720p frame
+    instead of ~40). Raises InputError naming the file when it is missing or its header is not
+    an EXR's."""
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"EXR file not found: '{path}'. Check the path or re-run the step that writes it.")
+    try:
+        exr = OpenEXR.File(str(path), header_only=True)
+        parts = list(exr.parts)
+        names = []
+        for index, part in enumerate(parts):
+            prefix = _part_prefix(part, index, len(parts))
+            for channel in part.header["channels"]:
+                names.append(channel.name if (not prefix or channel.name.startswith(prefix)) else prefix + channel.name)
+        (x0, y0), (x1, y1) = parts[0].header["dataWindow"]
+    except Exception as ex:
+        raise InputError(f"Cannot read the header of EXR file '{path}': {ex}. The file is corrupt or not an "
+                         "OpenEXR image; re-export it or delete it so it is recomputed.") from ex
+    return names, (int(x1 - x0 + 1), int(y1 - y0 + 1))
+
+
 def _check_channels(path: Path, channels: dict[str, np.ndarray], half: bool) -> dict[str, np.ndarray]:
     if not channels:
         raise OutputError(f"Cannot write EXR '{path}': no channels were given (pass at least one (H, W) array).")

@@ -264,8 +264,8 @@ def test_plan_key_names_the_parallax_check_only_with_parallax():
 def test_a_reused_auto_run_reads_each_frame_once_and_decodes_none(still_clip, tmp_path, weights, fake_people,
                                                                    monkeypatch):
     """Editors re-run often: with every frame of the cache intact, an auto run checks each
-    frame file once (not once in the up-front check and again when counting it) and neither
-    decodes the clip nor runs a cue."""
+    frame file once (not once in the up-front check and again when counting it), by its header
+    alone (its pixels are read by whoever uses them), and neither decodes the clip nor runs a cue."""
     from collections import Counter
 
     import rvr_addon.estimate.cache as cache_mod
@@ -274,21 +274,27 @@ def test_a_reused_auto_run_reads_each_frame_once_and_decodes_none(still_clip, tm
     cache = tmp_path / "cache"
     run(still_clip, cache, weights=weights)
     reads: Counter = Counter()
-    real = cache_mod.read_exr
+    headers: Counter = Counter()
+    real, real_header = cache_mod.read_exr, cache_mod.read_exr_header
 
     def counting(path):
         reads[path.name] += 1
         return real(path)
+
+    def counting_headers(path):
+        headers[path.name] += 1
+        return real_header(path)
 
     def no_decode(*a, **k):
         raise AssertionError("a fully cached run decoded the clip")
         yield  # pragma: no cover
 
     monkeypatch.setattr(cache_mod, "read_exr", counting)
+    monkeypatch.setattr(cache_mod, "read_exr_header", counting_headers)
     monkeypatch.setattr(video, "iter_frames", no_decode)
     again = run(still_clip, cache, weights=weights)
     assert (again.computed, again.reused) == (0, 6)
-    assert sorted(reads.values()) == [1] * 6, reads
+    assert sorted(headers.values()) == [1] * 6 and not reads, (headers, reads)
 
 
 class FailingPeople(FakePeople):

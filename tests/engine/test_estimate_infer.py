@@ -270,6 +270,7 @@ def test_cache_frames_are_rle_lossless_and_read_valid_reads_once(tmp_path):
     np.testing.assert_array_equal(got[0], d)
     np.testing.assert_array_equal(got[1], e)
     assert cache.is_valid(0, (5, 4)) and cache.read_valid(0, (4, 5)) is None  # wrong size
+    assert not cache.is_valid(0, (4, 5))  # the header alone says so
     assert cache.read_valid(1, (5, 4)) is None  # not recorded
     path = frame_path(cache.folder, 0)
     path.write_bytes(path.read_bytes()[:60])  # truncated: the recorded size no longer matches
