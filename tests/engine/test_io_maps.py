@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rvr_addon.errors import InputError, OutputError
-from rvr_addon.io.exr import read_exr, write_exr
+from rvr_addon.io.exr import read_exr, read_exr_header, write_exr
 from rvr_addon.io.maps import fill_nonfinite, open_map_sequence
 
 H, W = 6, 8
@@ -63,6 +63,23 @@ def test_exr_multipart_names(tmp_path):
     back = read_exr(tmp_path / "m.exr")
     assert sorted(back) == ["left.Z", "right.Z"]
     np.testing.assert_array_equal(back["right.Z"], ramp(1))
+
+
+def test_exr_header_names_the_channels_and_size_as_read_does(tmp_path):
+    """The header alone (the cache's check of a frame) gives read_exr's channel names and (w, h)."""
+    import OpenEXR
+
+    write_exr(tmp_path / "a.exr", {"D": ramp(), "E.R": ramp(1)})
+    assert read_exr_header(tmp_path / "a.exr") == (["D", "E.R"], (W, H))
+    parts = [OpenEXR.Part({}, {"Z": ramp()}, "left"), OpenEXR.Part({}, {"Z": ramp(1)}, "right")]
+    OpenEXR.File(parts).write(str(tmp_path / "m.exr"))
+    names, size = read_exr_header(tmp_path / "m.exr")
+    assert sorted(names) == sorted(read_exr(tmp_path / "m.exr")) and size == (W, H)
+    (tmp_path / "bad.exr").write_bytes(b"not an exr")
+    with pytest.raises(InputError, match="bad.exr"):
+        read_exr_header(tmp_path / "bad.exr")
+    with pytest.raises(InputError, match="not found"):
+        read_exr_header(tmp_path / "missing.exr")
 
 
 def test_exr_write_is_atomic_and_leaves_no_temp(tmp_path):
