@@ -450,9 +450,9 @@ class ClipCache:
         """True if frame ``index`` (0-based) is recorded, its file has the recorded size and its
         EXR header holds every channel at size (w, h). Only the header is read: a re-run that reuses
         a clip's depth read every frame whole to check it and then again to use it (a 720p frame
-        ~40 ms; 0.1 ms now). Pixel data that no longer decodes, or is not finite, is found by the
-        reader that meets it (:meth:`read_valid` checks the whole frame; the maps' reader names the
-        file)."""
+        ~40 ms; 0.1 ms now). Pixel data that no longer decodes is named by the reader that meets it
+        (``io.exr.read_exr``'s InputError), non-finite values are filled and logged by the maps'
+        reader (``io.maps``); :meth:`read_valid` still checks a whole frame as it reads it."""
         path = frame_path(self.folder, index)
         if not self._recorded_size(index, path):
             return False
