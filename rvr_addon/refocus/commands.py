@@ -183,7 +183,7 @@ def cmd_refocus(args: argparse.Namespace) -> int:
     seconds = ", ".join(f"{k} {v:.1f} s" for k, v in chain.seconds.items() if k not in chain.skipped)
     print(f"time: {seconds}" + (f" (reused: {', '.join(chain.skipped)})" if chain.skipped else ""))
     for out in run.outputs:
-        print(f"wrote {out}")
+        print(f"kept {out} (unchanged)" if out in run.kept else f"wrote {out}")
     if args.demo:
         print(DEMO_CREDIT)
     return 0

@@ -18,6 +18,8 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from .. import __version__
 from ..errors import InputError
 from ..io.paths import temp_sibling
@@ -117,17 +119,62 @@ def derived_path(output: Path, suffix: str) -> Path:
     return output.with_name(output.stem + suffix)
 
 
+def _depth_record(cache: Path) -> dict:
+    """What a cache's depth maps are: its key and stabilization record, and the engine version."""
+    from ..estimate.cache import KEY_FIELDS
+
+    meta = json.loads((Path(cache) / "meta.json").read_text())
+    record = {k: meta.get(k) for k in KEY_FIELDS}
+    record.update(stabilized=meta.get("stabilized"), engine_version=__version__)
+    return record
+
+
+def _digest(record: dict) -> str:
+    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
 def focus_key(cache: Path, settings: dict) -> str:
     """16 hex naming an autofocus decision: the cache's key and stabilization record (what the
     depth maps are), the focus settings and the version of LAAF's decision logic."""
-    meta = json.loads((Path(cache) / "meta.json").read_text())
-    from ..estimate.cache import KEY_FIELDS
     from ..laaf.presets import DECISION_VERSION
 
-    record = {k: meta.get(k) for k in KEY_FIELDS}
-    record.update(stabilized=meta.get("stabilized"), focus=settings, engine_version=__version__,
-                  laaf_decision=DECISION_VERSION)
-    return hashlib.sha256(json.dumps(record, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    return _digest({**_depth_record(cache), "focus": settings, "laaf_decision": DECISION_VERSION})
+
+
+def render_key(cache: Path, focus_file: Path, spec: ApertureSpec, settings: dict) -> str:
+    """16 hex naming a render: the depth maps (:func:`focus_key`'s record), the focus file's
+    bytes (an edited ``--track`` file renders again), the aperture shape and the other render
+    settings (``settings``: device, frame rate, output type)."""
+    kernel = spec.kernel_image
+    shape = {"shape": spec.shape, "blades": spec.blades, "rotation_deg": spec.rotation_deg, "squeeze": spec.squeeze,
+             "cat_eye": spec.cat_eye, "zones": spec.zones,
+             "kernel": None if kernel is None else hashlib.sha256(np.ascontiguousarray(kernel).tobytes()).hexdigest()}
+    focus = hashlib.sha256(Path(focus_file).read_bytes()).hexdigest()
+    return _digest({**_depth_record(cache), "focus_file": focus, "aperture": shape, "render": settings})
+
+
+def render_reusable(record: Path, output: Path) -> bool:
+    """Whether ``output`` is the file a finished render recorded in ``record`` (same path, size and
+    modification time): unchanged since, so rendering again would write the same frames."""
+    if not (record.is_file() and output.is_file()):
+        return False
+    try:
+        done = json.loads(record.read_text())
+    except (OSError, ValueError):
+        return False
+    st = output.stat()
+    return done == {"output": str(output.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+
+
+def record_render(record: Path, output: Path) -> None:
+    """Write ``record`` (atomically) for the finished render ``output`` (:func:`render_reusable`)."""
+    st = output.stat()
+    tmp = temp_sibling(record, ".json")
+    try:
+        tmp.write_text(json.dumps({"output": str(output.resolve()), "size": st.st_size, "mtime_ns": st.st_mtime_ns}))
+        os.replace(tmp, record)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _copy_atomic(src: Path, dst: Path) -> None:
@@ -150,6 +197,8 @@ class RefocusRun:
     cache: Path
     focus_file: Path | None = None
     outputs: list[Path] = field(default_factory=list)
+    kept: list[Path] = field(default_factory=list)
+    """Outputs of an earlier run left as they were (the same render again: :func:`render_reusable`)."""
     notes: list[str] = field(default_factory=list)
     frames: int = 0
     size: tuple[int, int] = (0, 0)
@@ -309,13 +358,26 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
 
     stages.append(Stage("autofocus", STAGE_COST["autofocus"] * n * px, build_autofocus, finish_autofocus, frames=n))
 
+    def render_record() -> Path:
+        key = render_key(run.cache, run.focus_file, s.spec,
+                         {"device": s.device, "fps": s.fps, "output_type": Path(s.output).suffix.lower()})
+        return run.work / f"render-{key}.json"
+
     def build_render():
         from ..pipeline import RenderJob, RenderSettings
 
+        if render_reusable(render_record(), Path(s.output)):  # e.g. the same command with --preview added
+            run.notes.append(f"render: reused {Path(s.output).name} (same depth, focus and render settings; "
+                             "delete it to render again)")
+            run.kept.append(Path(s.output))
+            finish_render(None)
+            return None
         return RenderJob(RenderSettings(input=run.clip, depth=run.cache, hdr=run.cache, outputs=[Path(s.output)],
                                         track=run.focus_file, spec=s.spec, fps=s.fps, device=s.device))
 
     def finish_render(job) -> None:
+        if job is not None:
+            record_render(render_record(), Path(s.output))
         run.outputs.append(Path(s.output))
         focus_copy = derived_path(Path(s.output), ".focus.json")
         if Path(run.focus_file).resolve() != focus_copy.resolve():  # --track OUT.focus.json: already there

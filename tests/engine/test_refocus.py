@@ -72,6 +72,34 @@ def test_a_second_run_reuses_the_depth_and_the_focus_decision(clip, reference, c
     np.testing.assert_array_equal(frames_of(reference / "r.mp4"), before)
 
 
+def _reused(printed: str) -> list[str]:
+    """The stages the ``time:`` line of a refocus run says were reused."""
+    line = next(t for t in printed.splitlines() if t.startswith("time:"))
+    return line.split("(reused: ")[1].rstrip(")").split(", ") if "(reused: " in line else []
+
+
+def test_the_same_render_again_is_reused_and_a_change_renders_anew(clip, tmp_path, capsys):
+    """Adding --preview (or --side-by-side) to a finished run makes only the sheet: the render is
+    the same (same depth, focus file and render settings) and its file is as it was written. Another
+    aperture, or an output touched since, renders again."""
+    out = tmp_path / "s.mp4"
+    args = ["refocus", str(clip), "-o", str(out), *FAST[:-1]]
+    assert main(args) == 0
+    first, frames = out.stat().st_mtime_ns, frames_of(out)
+    capsys.readouterr()
+    assert main([*args, "--preview"]) == 0
+    printed = capsys.readouterr().out
+    assert "render" in _reused(printed) and f"kept {out} (unchanged)" in printed and "render: reused" in printed
+    assert out.stat().st_mtime_ns == first and (tmp_path / "s_sheet.png").is_file()
+    assert main([*args, "--f-stop", "1.4"]) == 0  # another aperture: rendered again
+    assert "render" not in _reused(capsys.readouterr().out) and not np.array_equal(frames_of(out), frames)
+    assert main(args) == 0  # back to the first aperture: its record no longer matches the file
+    assert "render" not in _reused(capsys.readouterr().out)
+    np.testing.assert_array_equal(frames_of(out), frames)
+    out.write_bytes(out.read_bytes())  # touched by someone else: rendered again
+    assert main(args) == 0 and "render" not in _reused(capsys.readouterr().out)
+
+
 def test_ctrl_c_keeps_the_work_and_the_same_command_continues(clip, reference, tmp_path, monkeypatch, capsys):
     from rvr_addon.pipeline import RenderJob
 
