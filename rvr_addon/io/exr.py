@@ -26,6 +26,11 @@ def _part_prefix(part, index: int, n_parts: int) -> str:
     return f"{name or f'part{index}'}."
 
 
+def _full_name(prefix: str, name: str) -> str:
+    """A channel's name as read_exr gives it: prefixed by its part's name unless it carries it."""
+    return name if (not prefix or name.startswith(prefix)) else prefix + name
+
+
 def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """Read every channel of an EXR file.
 
@@ -46,8 +51,7 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
         for index, part in enumerate(parts):
             prefix = _part_prefix(part, index, len(parts))
             for name, channel in part.channels.items():
-                full = name if (not prefix or name.startswith(prefix)) else prefix + name
-                out[full] = np.ascontiguousarray(channel.pixels, dtype=np.float32)
+                out[_full_name(prefix, name)] = np.ascontiguousarray(channel.pixels, dtype=np.float32)
     except Exception as ex:
         raise InputError(
             f"Cannot read EXR file '{path}': {ex}. The file is corrupt or not an OpenEXR image; "
@@ -72,11 +76,8 @@ def read_exr_header(path: str | Path) -> tuple[list[str], tuple[int, int]]:
     try:
         exr = OpenEXR.File(str(path), header_only=True)
         parts = list(exr.parts)
-        names = []
-        for index, part in enumerate(parts):
-            prefix = _part_prefix(part, index, len(parts))
-            for channel in part.header["channels"]:
-                names.append(channel.name if (not prefix or channel.name.startswith(prefix)) else prefix + channel.name)
+        names = [_full_name(_part_prefix(part, index, len(parts)), channel.name)
+                 for index, part in enumerate(parts) for channel in part.header["channels"]]
         (x0, y0), (x1, y1) = parts[0].header["dataWindow"]
     except Exception as ex:
         raise InputError(f"Cannot read the header of EXR file '{path}': {ex}. The file is corrupt or not an "
