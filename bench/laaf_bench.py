@@ -11,7 +11,8 @@ through ``--depth`` like any user map. Timed: ``AutofocusJob.run`` end to end --
 analysis resize, disparity read, every detector, combination, K-means, step detection, KCF
 tracking, the puller and the keyframe fit (and, since issue 23, the shot-cut detector). Presets: auto (the
 default: reads the clip first, then runs what it picks: ``laaf.auto.*``), conversation (face + speech, the heaviest:
-dlib HOG every 6th frame), action (DIS flow + parallax fit + saliency) and, when AF-Net weights
+MediaPipe faces every 0.24 s, the face mesh on each, the speech detector; the frames with a face
+are printed as ``laaf.<preset>.<mode>.360p.frames_with_faces``: 0 would mean a run without the speaker work), action (DIS flow + parallax fit + saliency) and, when AF-Net weights
 are shipped, learned (AF-Net with the clip's sound, and the speech detector for the speaker of an
 NFT near a voice onset: ``laaf.learned.*``) and learned_map (AF-Net alone, ``--afnet-region map``:
 ``laaf.learned_map.*``), look-ahead and causal.
@@ -85,6 +86,9 @@ def main() -> int:
                 fps_all.append(fps)
                 mode = "causal" if causal else "lookahead"
                 out[f"laaf.{preset}.{mode}.360p.fps"] = round(fps, 2)
+                faces = result.detectors.get("face", {}).get("frames_with_faces")
+                if faces is not None:  # a run that finds no face times no speaker work (before 2026-12-07's tiles)
+                    out[f"laaf.{preset}.{mode}.360p.frames_with_faces"] = float(faces)
                 print(f"{preset:12s} {mode:9s} {len(result.focus)} frames {dt:6.2f} s  {fps:6.1f} fps  "
                       f"NFTs {[n.t for n in result.nfts]}  timings {result.settings['timings_s']}", file=sys.stderr)
         out["laaf.360p.fps"] = round(min(fps_all), 2)
