@@ -85,14 +85,25 @@ def tiled_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, levels
             continue
         largest, coarser = coarser * MAX_BOX_FRAC, side
         for x0, y0 in tile_grid(h, w, side):
-            tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
-            th, tw = tile.shape[:2]
-            for (bx, by, bw, bh), score in detect(tile):
-                inner_cut = ((x0 > 0 and bx <= EDGE_PX) or (y0 > 0 and by <= EDGE_PX)
-                             or (x0 + tw < w and bx + bw >= tw - EDGE_PX) or (y0 + th < h and by + bh >= th - EDGE_PX))
-                if not inner_cut and max(bw, bh) <= largest:
-                    found.append(((bx + x0, by + y0, bw, bh), score))
+            found += _from_tile(detect, image, x0, y0, side, largest)
     return merge_boxes(found)
+
+
+def _from_tile(detect: Callable[[np.ndarray], Found], image: np.ndarray, x0: int, y0: int, side: int,
+               largest: float) -> Found:
+    """The boxes ``detect`` finds on the square tile of ``side`` px at (x0, y0) of ``image``, in
+    ``image`` px; a box touching the tile's inner edge (not the picture's border) or wider or
+    taller than ``largest`` px is dropped."""
+    h, w = image.shape[:2]
+    tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
+    th, tw = tile.shape[:2]
+    out: Found = []
+    for (bx, by, bw, bh), score in detect(tile):
+        inner_cut = ((x0 > 0 and bx <= EDGE_PX) or (y0 > 0 and by <= EDGE_PX)
+                     or (x0 + tw < w and bx + bw >= tw - EDGE_PX) or (y0 + th < h and by + bh >= th - EDGE_PX))
+        if not inner_cut and max(bw, bh) <= largest:
+            out.append(((bx + x0, by + y0, bw, bh), score))
+    return out
 
 
 def around_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, boxes: Sequence[Box],
@@ -108,12 +119,7 @@ def around_boxes(detect: Callable[[np.ndarray], Found], image: np.ndarray, boxes
         side = int(min(max(min_px, scale * max(bw, bh)), min(h, w)))
         x0 = int(np.clip(round(bx + bw / 2 - side / 2), 0, w - side))
         y0 = int(np.clip(round(by + bh / 2 - side / 2), 0, h - side))
-        tile = np.ascontiguousarray(image[y0:y0 + side, x0:x0 + side])
-        for (fx, fy, fw, fh), score in detect(tile):
-            inner_cut = ((x0 > 0 and fx <= EDGE_PX) or (y0 > 0 and fy <= EDGE_PX)
-                         or (x0 + side < w and fx + fw >= side - EDGE_PX) or (y0 + side < h and fy + fh >= side - EDGE_PX))
-            if not inner_cut and max(fw, fh) <= max(h, w) * MAX_BOX_FRAC:
-                found.append(((fx + x0, fy + y0, fw, fh), score))
+        found += _from_tile(detect, image, x0, y0, side, max(h, w) * MAX_BOX_FRAC)
     return merge_boxes(found)
 
 
@@ -129,6 +135,11 @@ def detection_boxes(result: Any, shape: tuple[int, ...]) -> Found:
         if x1 - x0 >= 2 and y1 - y0 >= 2:
             out.append(((x0, y0, x1 - x0, y1 - y0), float(det.score[0]) if det.score else 0.0))
     return out
+
+
+def xywh(x0: float, y0: float, x1: float, y1: float) -> Box:
+    """A box given by its corners as (x, y, w, h)."""
+    return (x0, y0, x1 - x0, y1 - y0)
 
 
 def iou(a: Box, b: Box) -> float:

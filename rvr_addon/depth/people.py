@@ -403,7 +403,7 @@ class PeopleDetector:
                               "box_w": float(box.width * tw), "turned": turn,
                               "turned_box": (rel[0] * tw, rel[1] * th, rel[2] * tw, rel[3] * th)})
         if not rotated and self.tiles and "mesh" in models:  # small faces: tiles of the full-size frame
-            known = [(f["box"][0], f["box"][1], f["box"][2] - f["box"][0], f["box"][3] - f["box"][1]) for f in faces]
+            known = [face_tiles.xywh(*f["box"]) for f in faces]
 
             def detect(tile: np.ndarray) -> list:
                 return face_tiles.detection_boxes(models["faces"].process(tile), tile.shape)
@@ -428,8 +428,7 @@ class PeopleDetector:
         if "mesh" in models:  # a face found turned or in a tile must be one the mesh reads
             faces = [f for f in faces if f["mesh"] or not (rotated or f.get("tiled"))]
         if not rotated:
-            self._small = [(f["box"][0], f["box"][1], f["box"][2] - f["box"][0], f["box"][3] - f["box"][1])
-                           for f in faces if f.get("tiled")]
+            self._small = [face_tiles.xywh(*f["box"]) for f in faces if f.get("tiled")]
         for face in faces:
             face["distance"] = float(np.clip(focal_px(max(w, h), self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))

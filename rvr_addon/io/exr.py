@@ -26,6 +26,14 @@ def _part_prefix(part, index: int, n_parts: int) -> str:
     return f"{name or f'part{index}'}."
 
 
+def _existing(path: str | Path) -> Path:
+    """``path`` as a Path; InputError naming it when there is no such file."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"EXR file not found: '{path}'. Check the path or re-run the step that writes it.")
+    return path
+
+
 def _full_name(prefix: str, name: str) -> str:
     """A channel's name as read_exr gives it: prefixed by its part's name unless it carries it."""
     return name if (not prefix or name.startswith(prefix)) else prefix + name
@@ -41,9 +49,7 @@ def read_exr(path: str | Path) -> dict[str, np.ndarray]:
     """
     import OpenEXR
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"EXR file not found: '{path}'. Check the path or re-run the step that writes it.")
+    path = _existing(path)
     try:
         exr = OpenEXR.File(str(path), separate_channels=True)
         parts = list(exr.parts)
@@ -70,9 +76,7 @@ def read_exr_header(path: str | Path) -> tuple[list[str], tuple[int, int]]:
     an EXR's."""
     import OpenEXR
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"EXR file not found: '{path}'. Check the path or re-run the step that writes it.")
+    path = _existing(path)
     try:
         exr = OpenEXR.File(str(path), header_only=True)
         parts = list(exr.parts)
