@@ -238,11 +238,14 @@ class RenderJob:
         for out in s.outputs:
             refuse_picture_of_many(out, self.total)
         self.depth = open_map_sequence(s.depth, kind="disparity", scale=s.depth_scale, offset=s.depth_offset)
+        self.depth.place_on_timeline(self.clip)
         if len(self.depth) > 1 and len(self.depth) < stop:
             raise InputError(f"the depth sequence {s.depth} has {len(self.depth)} maps but the clip "
                              f"{s.input} needs {stop}: supply one map per frame (or a single map)")
         self.depth.warn_extra(self.clip.frame_count, s.input)
         self.hdr = open_map_sequence(s.hdr, kind="hdr") if s.hdr is not None else None
+        if self.hdr is not None:
+            self.hdr.place_on_timeline(self.clip)
         self._shared_reads = None
         self._maps: ReadAhead = ReadAhead(self._read_maps)
         if self.hdr is not None:

@@ -4,14 +4,16 @@ from __future__ import annotations
 from rvr_addon.io.video import iter_frames
 
 
-def flash_clip(ffmpeg_run, path, seconds: float = 3.5, flash_s: float = 2.5):
+def flash_clip(ffmpeg_run, path, seconds: float = 3.5, flash_s: float = 2.5, vfr: bool = True):
     """A 30 fps clip whose first 2 s keep only 2 frames in 3 (20 fps there: variable frame rate, as
-    phones record in low light), with a white flash and a 1 kHz beep at ``flash_s`` for 0.1 s."""
+    phones record in low light), with a white flash and a 1 kHz beep at ``flash_s`` for 0.1 s
+    (``vfr`` False: every frame kept, a constant frame rate)."""
+    keep = "select='gte(n,60)+lt(mod(n,3),2)'" if vfr else "null"
     box = f"drawbox=x=100:y=50:w=120:h=80:color=white:t=fill:enable='between(t,{flash_s},{flash_s + 0.1})'"
     ffmpeg_run("-f", "lavfi", "-i", f"color=c=0x303030:size=320x180:rate=30:duration={seconds},{box}",
                "-f", "lavfi", "-i", f"sine=frequency=1000:duration={seconds},volume=volume=0:"
                f"enable='not(between(t,{flash_s},{flash_s + 0.1}))'",
-               "-vf", "select='gte(n,60)+lt(mod(n,3),2)'", "-fps_mode", "vfr", "-c:v", "libx264",
+               "-vf", keep, "-fps_mode", "vfr", "-c:v", "libx264",
                "-preset", "ultrafast", "-pix_fmt", "yuv420p", "-c:a", "aac", "-shortest", str(path))
     return path
 

@@ -107,8 +107,6 @@ class ClipPlan:
 
     name: output stem (unique in the batch). frames, fps, width, height, has_audio: filled in
     by the probe task (0 until then). source_hash: the source fingerprint (cache module).
-    decoded: the file the stages read when it is not ``source`` (a variable-frame-rate clip's
-    constant-rate copy in the work folder, made by the probe task); :attr:`reads` names it.
     """
 
     index: int
@@ -122,12 +120,6 @@ class ClipPlan:
     height: int = 0
     has_audio: bool = False
     source_hash: str = ""
-    decoded: Path | None = None
-
-    @property
-    def reads(self) -> Path:
-        """The video the stages decode: ``decoded`` when set, else ``source``."""
-        return self.decoded if self.decoded is not None else self.source
 
     def probed(self, **info) -> "ClipPlan":
         """A copy with the probe's findings."""

@@ -114,33 +114,9 @@ def probe(plan: ClipPlan, settings: BatchSettings, fingerprint: str) -> dict:
         skip = (not settings.force and marker is not None and marker.get("fingerprint") == fingerprint
                 and marker.get("source_hash") == source_hash
                 and all(p.exists() for p in probed.output_paths(settings)))
-        if not skip and clip.nominal_fps is not None and depth is None:  # external maps count the clip's own frames
-            decoded = constant_rate_copy(plan, clip)
-            clip = probe_clip(decoded)
-            probed = probed.probed(frames=clip.frame_count, fps=clip.fps, decoded=decoded)
         return {"plan": probed, "skip": skip, "frames": clip.frame_count}
 
     return _guard("probe", plan, None, run)
-
-
-def constant_rate_copy(plan: ClipPlan, clip) -> Path:
-    """A variable-frame-rate clip's copy at its nominal constant rate, each frame at its time, with
-    its sound (``refocus.proxy.ProxyJob``, as ``rvr refocus`` makes it), in the clip's work folder;
-    reused when there already (written atomically)."""
-    from ..refocus.proxy import ProxyJob
-
-    copy = plan.work / f"constant_rate_{clip.nominal_fps:.6g}fps.mp4"
-    if not copy.is_file():
-        log.info("%s: variable frame rate (average %.4g fps): decoded at a constant %.4g fps into %s, so sound and "
-                 "picture stay in sync", plan.source, clip.fps, clip.nominal_fps, copy)
-        copy.parent.mkdir(parents=True, exist_ok=True)
-        job = ProxyJob(plan.source, copy, None, clip=clip)
-        while job.step():
-            pass
-    return copy
-
-
-# ------------------------------------------------------------------------------ analyze
 
 
 def estimate(plan: ClipPlan, settings: BatchSettings, weights: Path | None, a: int, b: int) -> dict:
@@ -153,7 +129,7 @@ def estimate(plan: ClipPlan, settings: BatchSettings, weights: Path | None, a: i
         staging = staging_root(plan) / f"estimate_{a:06d}_{b:06d}"
         seed_staging(plan.cache, staging, a, b)
         job = EstimateJob(EstimateSettings(
-            input=plan.reads, output=staging, weights=weights, depth=depth_maps(plan, settings),
+            input=plan.source, output=staging, weights=weights, depth=depth_maps(plan, settings),
             depth_scale=settings.depth_scale, depth_offset=settings.depth_offset,
             depth_is_distance=settings.depth_is_distance, no_hdr=settings.no_hdr, start=a, stop=b, fps=settings.fps,
             depth_method=settings.depth_method, hfov_deg=settings.hfov_deg),
@@ -188,7 +164,7 @@ def stabilize(plan: ClipPlan, settings: BatchSettings, a: int, b: int, merged: d
         lo, hi = stabilize_reads(a, b, plan.frames, settings.temporal)
         staging = staging_root(plan) / f"stabilize_{a:06d}_{b:06d}"
         seed_staging(plan.cache, staging, lo, hi)
-        job = StabilizeJob(StabilizeSettings(cache=staging, input=plan.reads, temporal=settings.temporal,
+        job = StabilizeJob(StabilizeSettings(cache=staging, input=plan.source, temporal=settings.temporal,
                                              start=a, stop=b))
         job.run(progress=False)
         return {"frames": b - a, "written": job.written, "reused": job.reused, "range": (a, b),
@@ -235,7 +211,7 @@ def autofocus_settings(plan: ClipPlan, settings: BatchSettings):
     """The ``AutofocusSettings`` of the clip: what the measure chunks and the autofocus task share."""
     from ..laaf.lookahead import AutofocusSettings
 
-    return AutofocusSettings(input=plan.reads, cache=plan.cache, preset=settings.preset, window_s=settings.window_s,
+    return AutofocusSettings(input=plan.source, cache=plan.cache, preset=settings.preset, window_s=settings.window_s,
                              causal=settings.causal, pull=settings.pull, aperture=settings.aperture, fps=settings.fps,
                              afnet_weights=settings.afnet_weights, afnet_threshold=settings.afnet_threshold,
                              afnet_speaker=settings.afnet_speaker, calm=settings.calm,
@@ -300,7 +276,7 @@ def render(plan: ClipPlan, settings: BatchSettings, a: int, b: int, focus: dict)
         if out.is_dir() and len(list(out.glob("frame_*" + _suffix(settings)))) == b - a:
             return {"frames": b - a, "reused": True}  # the writer swaps a folder in only when complete
         job = RenderJob(RenderSettings(
-            input=plan.reads, depth=plan.cache, hdr=plan.cache, outputs=[out / f"frame_%05d{_suffix(settings)}"],
+            input=plan.source, depth=plan.cache, hdr=plan.cache, outputs=[out / f"frame_%05d{_suffix(settings)}"],
             track=focus_work_path(plan), start=a, stop=b, fps=settings.fps, keep_audio=False, scale=settings.scale,
             threads=worker_task_threads()))  # the renderer's blur pool keeps to --task-threads too
         job.run(progress=False)
@@ -346,7 +322,7 @@ def _encode(plan: ClipPlan, settings: BatchSettings, files: list[Path]) -> None:
 
     first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
     size = (first.shape[1], first.shape[0])
-    audio = plan.reads if plan.has_audio else None
+    audio = plan.source if plan.has_audio else None
     with VideoWriter(plan.video_path(settings), fps=plan.fps, size=size, audio_from=audio) as writer:
         for f in files:
             frame = cv2.imread(str(f), cv2.IMREAD_COLOR)

@@ -87,14 +87,16 @@ Files of either compression are read alike, so caches written with ZIP stay vali
 STABILIZED_CHANNELS = ("S.D", "S.E.R", "S.E.G", "S.E.B", "S.C")
 MIB = 1 << 20
 KEY_FIELDS = ("format", "engine_version", "model_hash", "source_hash", "resolution", "depth")
-OPTIONAL_KEY_FIELDS = ("max_pixels", "context_pixels", "blur_span", "hdr_source")
+OPTIONAL_KEY_FIELDS = ("max_pixels", "context_pixels", "blur_span", "hdr_source", "frame_timeline")
 """Key fields compared like KEY_FIELDS but absent (= None) in older caches: ``max_pixels`` is the
 network trunk's size when it is not DEFAULT_MAX_PIXELS (``--max-pixels``); ``context_pixels`` the
 size of D's layout pass (``infer.CONTEXT_PIXELS``; caches made before it have none and recompute);
 ``blur_span`` "long side" on a portrait clip, whose D spans its height since 2026-12-07
 (``depth.cues.blur_span``; portrait caches made before recompute, landscape ones stay valid);
 ``hdr_source`` on an HDR video (HLG, PQ), whose frames are tone-mapped to SDR since 2026-12-07
-(``io.video.HDR_TO_SDR``; HDR caches made before recompute)."""
+(``io.video.HDR_TO_SDR``; HDR caches made before recompute); ``frame_timeline`` on a
+variable-frame-rate video, whose frames are those of its constant-rate timeline since 2026-12-07
+(``io.video.video_timeline``; caches made before counted its decoded frames and recompute)."""
 REBUILD_TAG = ".rebuild-"
 GENERATED_FIELDS = frozenset({"channels", "frame_numbering", "frame_range", "frame_count", "updated", "frames",
                               "stabilized", "committing"})

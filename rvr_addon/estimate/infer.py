@@ -475,6 +475,7 @@ class EstimateJob:
         if s.depth is not None:
             self.depth = DepthSource(Path(s.depth), s.depth_scale, s.depth_offset, s.depth_is_distance,
                                      list(s.depth_points))
+            self.depth.maps.place_on_timeline(self.clip)
             self.depth.maps.check_length(stop)
             self.depth.maps.warn_extra(self.clip.frame_count, s.input)
             self.depth.fit(self.start, size)
@@ -498,6 +499,8 @@ class EstimateJob:
             transfer = video_transfer(self.clip.path)
             if transfer is not None:  # since 2026-12-07 an HDR clip's frames are tone-mapped (caches made before recompute)
                 key["hdr_source"] = f"{transfer}, tone-mapped to SDR BT.709"
+            if self.clip.nominal_fps is not None:  # a variable frame rate: frames of its constant-rate timeline
+                key["frame_timeline"] = f"constant {self.clip.nominal_fps:.6g} fps"
         if self.estimator is not None and self.estimator.max_pixels != DEFAULT_MAX_PIXELS:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         if self.estimator is not None and self.estimator.context_pixels:

@@ -259,6 +259,8 @@ class MapSequence:
         self._static_cache: tuple[tuple[int, int] | None, np.ndarray] | None = None
         self.shared: SharedExrReads | None = None
         """EXR reads shared with another sequence of the same files (:func:`share_exr_reads`)."""
+        self.rows: np.ndarray | None = None
+        """Per frame, the layer of ``stack`` it reads, when not its own index (:meth:`place_on_timeline`)."""
 
     def __len__(self) -> int:
         return len(self.paths)
@@ -284,6 +286,27 @@ class MapSequence:
         if not self.static and len(self) > 1 and len(self) > clip_frames:
             log.warning("%s has %d maps but the clip '%s' has %d frames; maps %d..%d are not used. Check that the maps "
                         "belong to this clip.", self.label, len(self), clip, clip_frames, clip_frames, len(self) - 1)
+
+    def place_on_timeline(self, clip) -> None:
+        """Maps of a variable-frame-rate clip's decoded frames, one each (as a tool that decodes it
+        in order makes them), placed on the constant-rate timeline the clip is read on
+        (``io.video.video_timeline``, ``ClipInfo.decoded_frames``): frame k gets the map of the
+        decoded frame it shows. Other sequences (one map, a cache, a map per timeline frame) are
+        left as they are."""
+        if (self.static or self.cache is not None or clip.decoded_frames is None or len(self) != clip.decoded_frames
+                or clip.decoded_frames == clip.frame_count):
+            return
+        from .video import video_timeline
+
+        timeline = video_timeline(clip.path)
+        if timeline is None:
+            return
+        self.paths = [self.paths[j] for j in timeline.decoded]
+        if self.stack is not None:
+            self.rows = timeline.decoded
+        log.info("%s: %d maps, one per decoded frame of the variable-frame-rate clip '%s', placed on the %d frames it "
+                 "is read as (a constant %.4g fps)", self.label, clip.decoded_frames, clip.path, clip.frame_count,
+                 clip.nominal_fps)
 
     def path_for(self, index: int) -> Path:
         """File that holds frame `index` (0-based); InputError when out of range."""
@@ -344,7 +367,8 @@ class MapSequence:
         if self.cache is not None:
             array = self._read_cache_frame(path)
         elif self.stack is not None:
-            array = _read_raw(path, self.kind, layer=np.asarray(self.stack[index]))
+            array = _read_raw(path, self.kind, layer=np.asarray(self.stack[index if self.rows is None else
+                                                                            int(self.rows[index])]))
         else:
             array = _read_raw(path, self.kind, self.prefix, shared=self.shared)
         finite = np.isfinite(array)

@@ -17,6 +17,13 @@ which are exactly frames start, start+1, ... of a decode from the beginning (fra
 packet with the k-th smallest presentation time; any frame rate, variable too). Where that
 cannot be guaranteed (containers whose seeking is approximate, missing or repeated timestamps,
 a stream that does not begin with a keyframe) it decodes from the beginning.
+
+A variable-frame-rate video (phones: Android above all, iPhones in low light; ffmpeg's average
+rate differs from the nominal one by more than 2 %) is read on a constant-rate timeline at its
+nominal rate (:class:`FrameTimeline`), frame k being the picture shown k / fps s in, placed by
+the packets' own presentation times, as Blender's sequencer shows the clip and as its sound
+runs: every command, ``rvr batch`` and the Blender tool count the same frames, and a frame's
+sound is its own. Its decoded frames are seeked and decoded as above, then repeated or skipped.
 """
 from __future__ import annotations
 
@@ -60,9 +67,13 @@ class ClipInfo:
     has_audio: bool
     kind: str  # "video" or "images"
     nominal_fps: float | None = None
-    """A variable-frame-rate video's nominal rate (frames/s; ``fps`` is then its average, and frames
-    are counted in decode order): what a constant-rate decode (``iter_frames(cfr_fps=...)``) uses.
-    None for a constant-rate video or an image sequence."""
+    """A variable-frame-rate video's nominal rate (frames/s): it is read on a constant-rate timeline
+    at this rate (:class:`FrameTimeline`; ``fps`` and ``frame_count`` are that timeline's). None for
+    a constant-rate video or an image sequence."""
+    average_fps: float | None = None
+    """A variable-frame-rate video's average rate (its decoded frames over its duration), else None."""
+    decoded_frames: int | None = None
+    """A variable-frame-rate video's count of decoded frames (``frame_count`` counts its timeline), else None."""
 
 
 HDR_TRANSFERS = {"arib-std-b67": "HLG", "smpte2084": "PQ (HDR10)"}
@@ -102,17 +113,21 @@ def hdr_transfer(description: str) -> str | None:
 
 
 @functools.lru_cache(maxsize=64)
-def _video_transfer(path: str, mtime_ns: int, size: int) -> str | None:
-    """:func:`hdr_transfer` of a video file (keyed by its path, time and size: a replaced file is
-    read again)."""
+def _description(path: str, mtime_ns: int, size: int) -> str:
+    """ffmpeg's description of a video file's input (keyed by its path, time and size: a replaced
+    file is read again)."""
     run = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", path], capture_output=True, check=False)
-    return hdr_transfer(run.stderr.decode("utf-8", "replace"))
+    return run.stderr.decode("utf-8", "replace")
+
+
+def _file_key(video: Path) -> tuple[str, int, int]:
+    st = Path(video).stat()
+    return str(video), st.st_mtime_ns, st.st_size
 
 
 def video_transfer(video: Path) -> str | None:
     """The HDR transfer of a video file ("HLG", "PQ (HDR10)"), None for SDR."""
-    st = Path(video).stat()
-    return _video_transfer(str(video), st.st_mtime_ns, st.st_size)
+    return hdr_transfer(_description(*_file_key(video)))
 
 
 def _hdr_filter(video: Path) -> str | None:
@@ -256,12 +271,30 @@ def _tail(text: str, lines: int = 12) -> str:
     return "\n".join(kept[-lines:])
 
 
-def _scan_with_ffmpeg(path: Path) -> tuple[int, bool, str]:
+@dataclass(frozen=True)
+class _Listing:
+    """What :func:`_scan_with_ffmpeg` read: the shown frames' count, whether there is audio,
+    ffmpeg's description of the input, the shown frames' presentation times in time-base units
+    (sorted; None when a packet has none) and the time base (s per unit; None if not given)."""
+
+    count: int
+    has_audio: bool
+    description: str
+    shown_pts: np.ndarray | None
+    time_base: Fraction | None
+
+
+@functools.lru_cache(maxsize=16)
+def _listing(path: str, mtime_ns: int, size: int) -> _Listing:
+    """:func:`_scan_with_ffmpeg` of a file version (keyed like :func:`_description`)."""
+    return _scan_with_ffmpeg(Path(path))
+
+
+def _scan_with_ffmpeg(path: Path) -> _Listing:
     """Count the shown frames of the first video stream without decoding, and look for audio.
 
     Lists packets by stream copy (framecrc) and skips packets flagged discard, which MP4 edit
     lists (trimmed clips) keep only for decoding; the count then equals the decoded frames.
-    Returns (frame count, has_audio, ffmpeg's description of the input).
     """
     cmd = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", str(path), "-map", "0:V:0", "-c", "copy",
            "-f", "framecrc", "-"]
@@ -280,29 +313,43 @@ def _scan_with_ffmpeg(path: Path) -> tuple[int, bool, str]:
         )
     has_audio = re.search(r"Stream #\d+:\d+.*: Audio:", description) is not None
     count = packets = 0
+    header: list[str] = []
+    shown: list[int] | None = []
     for line in run.stdout.decode("ascii", "replace").splitlines():
         if not line or line.startswith("#"):
+            header.append(line + "\n")
             continue
         packets += 1
-        flags = _PACKET_FLAGS.search(line)
-        if flags is None or not int(flags.group(1), 16) & _DISCARD_FLAG:
+        packet = parse_packet(line)
+        if packet is not None and not packet.discard:
             count += 1
-    _warn_if_truncated(path, count, packets, "partial file" in stderr)
-    return count, has_audio, description
+            if shown is not None and packet.pts is not None:
+                shown.append(packet.pts)
+            else:
+                shown = None
+    tb = _time_base(header)
+    span = float((max(shown) - min(shown)) * tb) if shown and tb is not None else None
+    _warn_if_truncated(path, count, packets, "partial file" in stderr, span)
+    return _Listing(count, has_audio, description, np.sort(np.asarray(shown, dtype=np.int64)) if shown is not None
+                    else None, tb)
 
 
-def _warn_if_truncated(path: Path, count: int, packets: int, partial: bool) -> None:
+def _warn_if_truncated(path: Path, count: int, packets: int, partial: bool, span_s: float | None = None) -> None:
     """Warn, naming the file and both counts, when the container declares more frames than its
-    data holds (a copy or download cut short; a ``+faststart`` MP4 keeps its full index)."""
+    data holds (a copy or download cut short; a ``+faststart`` MP4 keeps its full index). A
+    container that declares its duration times its rate (Matroska) is not truncated when its
+    frames' own times (``span_s`` from the first to the last) span that count: a variable frame rate."""
     import cv2
 
     cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
     try:
         declared = float(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0.0
+        rate = float(cap.get(cv2.CAP_PROP_FPS)) if cap.isOpened() else 0.0
     finally:
         cap.release()
     declared = int(declared) if np.isfinite(declared) and declared > 0 else 0
-    if partial or declared > packets:
+    spanned = int(round(span_s * rate)) + 1 if span_s is not None and np.isfinite(rate) and rate > 0 else 0
+    if partial or declared > max(packets, spanned):
         said = f"its container declares {declared} frames but" if declared > packets else "ffmpeg reports a partial file;"
         log.warning("'%s' is truncated or damaged: %s only %d can be read; the clip is used as %d frames. Re-copy or "
                     "re-export the file to get the whole clip.", path, said, count, count)
@@ -320,28 +367,102 @@ def _container_fps(path: Path) -> float:
     return fps if np.isfinite(fps) and fps > 0 else 0.0
 
 
-def vfr_rates(description: str) -> tuple[float, float] | None:
-    """(average, nominal) frames/s of a video whose ffmpeg stream description shows a variable
-    frame rate (the two differ by more than 2 %), else None."""
+def stream_rates(description: str) -> tuple[float, float] | None:
+    """(average, nominal) frames/s of the first video stream as ffmpeg's description of the input
+    prints them ("25.71 fps, 30 tbr"), None where it does not."""
     match = _STREAM_FPS.search(description)
     if not match:
         return None
     average = float(match.group(1)) * (1000 if match.group(2) else 1)
     nominal = float(match.group(3)) * (1000 if match.group(4) else 1)
-    if average > 0 and nominal > 0 and abs(average - nominal) > 0.02 * nominal:
-        return average, nominal
-    return None
+    return (average, nominal) if average > 0 and nominal > 0 else None
 
 
-def _warn_if_vfr(path: Path, rates: tuple[float, float], fps: float) -> None:
-    average, nominal = rates
-    log.warning(
-        "'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps). rvr refocus and rvr batch decode it at a "
-        "constant %.4g fps (each frame placed by its timestamp), so sound and picture stay in sync; the other commands use "
-        "its frames in decode order at %.4g fps: convert it first if timing matters there "
-        "(ffmpeg -i IN -fps_mode cfr -r %.4g OUT.mp4).",
-        path, average, nominal, nominal, fps, nominal,
-    )
+NTSC_RATES = tuple(Fraction(1000 * n, 1001) for n in (24, 30, 48, 60, 120, 240))
+"""The 1000/1001 rates, which ffmpeg prints rounded ("23.98", "29.97"): :func:`exact_rate`."""
+
+
+def exact_rate(rate: float) -> float:
+    """A frame rate as printed, made exact where it is a 1000/1001 rate (23.98 is 24000/1001: at
+    23.98 the timeline of a long clip would slip a frame every ~4 minutes)."""
+    near = min(NTSC_RATES, key=lambda r: abs(float(r) - rate))
+    return float(near) if abs(float(near) - rate) < 0.006 else float(rate)
+
+
+def _nominal_rate(description: str, median_rate: float) -> float:
+    """The rate a variable-frame-rate clip's timeline runs at: the stream's nominal rate (ffmpeg's
+    tbr, as Blender takes it) where it is one a camera records at, else the rate of its median
+    frame interval; made exact."""
+    rates = stream_rates(description)
+    return exact_rate(rates[1]) if rates is not None and 1.0 <= rates[1] <= 240.0 else median_rate
+
+
+@dataclass(frozen=True)
+class FrameTimeline:
+    """How a variable-frame-rate video is read: on a constant-rate timeline at its nominal rate
+    ``fps``, frame k being the picture shown k / fps s after its first one. ``decoded[k]`` is that
+    picture's index among the decoded frames (in presentation order, as a plain decode gives them):
+    a frame held longer is repeated, one shown for less than a frame time may be skipped. Frame k
+    is the last decoded frame whose time, in frames of the timeline, rounds to k or less (ffmpeg's
+    ``fps`` filter places frames so, and Blender's sequencer shows a movie strip so)."""
+
+    fps: float
+    average_fps: float
+    decoded: np.ndarray
+    decoded_count: int
+
+    @property
+    def frame_count(self) -> int:
+        return int(len(self.decoded))
+
+
+def timeline_of(shown_pts: "np.ndarray | list[int]", time_base: Fraction | float, fps: float) -> np.ndarray:
+    """``FrameTimeline.decoded`` of frames shown at ``shown_pts`` (time-base units, any order) on a
+    timeline of ``fps`` frames a second from the first of them: per timeline frame, the index of
+    the decoded frame shown then (int64)."""
+    seconds = (np.sort(np.asarray(shown_pts, dtype=np.int64)) - min(shown_pts)) * float(time_base)
+    slot = np.floor(seconds * fps + 0.5).astype(np.int64)
+    return np.searchsorted(slot, np.arange(int(slot[-1]) + 1), side="right") - 1
+
+
+def _is_identity(decoded: np.ndarray) -> bool:
+    return bool(np.array_equal(decoded, np.arange(len(decoded))))
+
+
+@functools.lru_cache(maxsize=16)
+def _timeline(path: str, mtime_ns: int, size: int) -> FrameTimeline | None:
+    listing = _listing(path, mtime_ns, size)
+    pts = listing.shown_pts
+    if pts is None or listing.time_base is None or len(pts) < 2 or len(np.unique(pts)) != len(pts):
+        rates = stream_rates(listing.description)
+        if rates is not None and abs(rates[0] - rates[1]) > 0.02 * rates[1] and abs(rates[1] - 2 * rates[0]) > 0.02 * rates[1]:
+            # (a nominal rate twice the average is an interlaced stream's field rate, not a variable frame rate)
+            log.warning("'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps) but its frames' times are "
+                        "missing or repeated, so its frames are read in decode order and the sound may drift against "
+                        "them; convert it first (ffmpeg -i IN -fps_mode cfr -r %.4g OUT.mp4)", path, *rates, rates[1])
+        return None
+    seconds = (pts - pts[0]) * float(listing.time_base)
+    median = float(np.median(np.diff(seconds)))
+    if median <= 0:
+        return None
+    median_rate = exact_rate(1.0 / median)
+    if _is_identity(timeline_of(pts, listing.time_base, median_rate)):
+        return None  # every frame at its own time at the rate of its median interval: a constant frame rate
+    nominal = _nominal_rate(listing.description, median_rate)
+    decoded = timeline_of(pts, listing.time_base, nominal)
+    if _is_identity(decoded):  # (a nominal rate other than the median one that still fits every frame)
+        return None
+    average = listing.count / (float(seconds[-1]) + 1.0 / nominal)
+    log.info("'%s' has a variable frame rate (average %.4g fps, nominal %.4g fps): it is read at a constant %.4g fps, "
+             "each of its %d frames at its time (%d frames), so sound and picture stay in sync",
+             path, average, nominal, nominal, listing.count, len(decoded))
+    return FrameTimeline(nominal, average, decoded, listing.count)
+
+
+def video_timeline(video: Path) -> FrameTimeline | None:
+    """The constant-rate timeline a variable-frame-rate video is read on (:class:`FrameTimeline`),
+    None for a constant-rate video (or one whose frame times are missing: decode order)."""
+    return _timeline(*_file_key(video))
 
 
 def _read_exact(stream, count: int) -> bytearray | None:
@@ -579,19 +700,18 @@ def _seek_target(key: Packet, next_key: Packet | None, time_base: Fraction) -> f
     return target / us
 
 
-def _video_command(video: Path, start: int, stop: int | None, cfr_fps: float | None = None) -> list[str]:
-    """The ffmpeg command decoding frames start..stop-1 into a PPM pipe (seeking when exact);
-    cfr_fps: frames of a constant-rate timeline at that rate instead (ffmpeg's fps filter repeats or
-    drops frames by their timestamps), decoded from the first frame."""
+def _video_command(video: Path, start: int, stop: int | None) -> list[str]:
+    """The ffmpeg command decoding frames start..stop-1 (in decode order) into a PPM pipe
+    (seeking when exact)."""
     head = [ffmpeg_exe(), "-hide_banner", "-nostdin", "-v", "warning", "-reinit_filter", "0"]
     tail = ["-map", "0:V:0", "-fps_mode", "passthrough", "-an", "-sn", "-dn"]
     point = None
-    if start > 0 and cfr_fps is None:
+    if start > 0:
         scan = scan_packets(video, start)
         point = seek_point(scan, start) if scan is not None else None
         if point is None:
             log.debug("'%s': no exact seek point for frame %d; decoding from the first frame", video, start)
-    filters = [] if cfr_fps is None else [f"fps={cfr_fps:.6f}"]
+    filters = []
     if point is not None:
         target, threshold = point
         cmd = head + ["-seek_timestamp", "1", "-ss", f"{target:.6f}", "-noaccurate_seek", "-copyts",
@@ -611,8 +731,25 @@ def _video_command(video: Path, start: int, stop: int | None, cfr_fps: float | N
     return cmd + ["-f", "image2pipe", "-c:v", "ppm", "-pix_fmt", "rgb24", "pipe:1"]
 
 
-def _iter_video(video: Path, start: int, stop: int | None, cfr_fps: float | None = None) -> Iterator[np.ndarray]:
-    """Decode with the bundled ffmpeg into a PPM pipe.
+def _iter_timeline(video: Path, timeline: FrameTimeline, start: int, stop: int | None) -> Iterator[np.ndarray]:
+    """Frames start..stop-1 of a variable-frame-rate video's constant-rate timeline: the decoded
+    frames they show (:class:`FrameTimeline`), a frame shown on several timeline frames repeated
+    (as a copy: a caller may change a frame it was given)."""
+    stop = timeline.frame_count if stop is None else min(stop, timeline.frame_count)
+    if start >= stop:
+        return
+    wanted = timeline.decoded[start:stop]
+    k = 0
+    for index, frame in enumerate(_iter_video(video, int(wanted[0]), int(wanted[-1]) + 1), start=int(wanted[0])):
+        first = True
+        while k < len(wanted) and wanted[k] == index:
+            yield frame if first else frame.copy()
+            first = False
+            k += 1
+
+
+def _iter_video(video: Path, start: int, stop: int | None) -> Iterator[np.ndarray]:
+    """Decode with the bundled ffmpeg into a PPM pipe (frames in decode order).
 
     ffmpeg (unlike OpenCV's capture, which always assumes BT.601) converts with the colour
     matrix the file is tagged with (BT.709 for HD phone video) and applies display rotation.
@@ -620,7 +757,7 @@ def _iter_video(video: Path, start: int, stop: int | None, cfr_fps: float | None
     being scaled away silently; it is then reported as an InputError. A range from start > 0
     seeks where that is exact (module docstring), else decodes from the first frame.
     """
-    cmd = _video_command(video, start, stop, cfr_fps)
+    cmd = _video_command(video, start, stop)
     with tempfile.TemporaryFile() as log_file:
         proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=log_file)
         watch = _LogWatch(log_file)
@@ -677,10 +814,11 @@ def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
     """Describe a clip, decoding only its first frame.
 
     fps: frames/s of an image sequence (default 24.0); for a video it overrides the container
-    rate (use it for mislabelled or variable-frame-rate clips). width/height are those of the
-    decoded (upright) frames. frame_count of a video counts the frames of its first video
+    rate (a mislabelled clip; it does not change which frames are read). width/height are those
+    of the decoded (upright) frames. frame_count of a video counts the frames of its first video
     stream from the packet list (exact, unlike container metadata, and honouring MP4 edit
-    lists). Raises VideoOpenError naming the path and the fix.
+    lists); of a variable-frame-rate video, the frames of its constant-rate timeline
+    (:func:`video_timeline`). Raises VideoOpenError naming the path and the fix.
     """
     fps = _check_fps(fps)
     kind, shown, files = _resolve(path)
@@ -689,7 +827,8 @@ def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
         return ClipInfo(shown, int(first.shape[1]), int(first.shape[0]), fps or DEFAULT_SEQUENCE_FPS,
                         len(files), False, "images")
     video = files[0]
-    count, has_audio, description = _scan_with_ffmpeg(video)
+    listing = _listing(*_file_key(video))
+    count, has_audio, description = listing.count, listing.has_audio, listing.description
     frames = _iter_video(video, 0, 1)
     try:
         first = next(frames, None)
@@ -697,21 +836,21 @@ def probe_clip(path: str | Path, fps: float | None = None) -> ClipInfo:
         frames.close()
     if first is None or count <= 0:
         raise VideoOpenError(f"Video '{video}' has no decodable frames; the file may be truncated. Re-export or re-copy it.")
-    nominal = None
+    timeline = video_timeline(video)
+    nominal = average = None
+    if timeline is not None:
+        count, nominal, average = timeline.frame_count, timeline.fps, timeline.average_fps
     if fps is None:
-        fps = _container_fps(video)
+        fps = nominal or _container_fps(video)
         if not fps:
             fps = DEFAULT_SEQUENCE_FPS
             log.warning("'%s' has no frame rate; assuming %.4g fps. Pass fps= to set it.", video, fps)
-        rates = vfr_rates(description)
-        if rates is not None:
-            _warn_if_vfr(video, rates, fps)
-            nominal = rates[1]
     transfer = hdr_transfer(description)
     if transfer is not None and _ffmpeg_has_tonemap():
         log.info("'%s' is HDR (%s): its frames are tone-mapped to SDR BT.709, which the engine and the refocused "
                  "video use", video, transfer)
-    return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video", nominal)
+    return ClipInfo(video, int(first.shape[1]), int(first.shape[0]), fps, count, has_audio, "video", nominal,
+                    average, timeline.decoded_count if timeline is not None else None)
 
 
 def _check_range(path: str | Path, start: int, stop: int | None) -> None:
@@ -729,12 +868,12 @@ def _size_error(index: int, source: Path, got: tuple, want: tuple) -> InputError
 
 
 def iter_frames(path: str | Path, start: int = 0, stop: int | None = None,
-                cfr_fps: float | None = None) -> Iterator[np.ndarray]:
+                decode_order: bool = False) -> Iterator[np.ndarray]:
     """Yield frames start..stop-1 (stop None = to the end) as (H, W, 3) uint8 RGB.
 
-    cfr_fps (videos): count frames on a constant-rate timeline at this rate, frame k being the one
-    shown at k / cfr_fps s (repeated or dropped by their timestamps: a variable-frame-rate clip
-    kept in sync with its sound, ``ClipInfo.nominal_fps``); decoded from the first frame.
+    A variable-frame-rate video's frames are those of its constant-rate timeline
+    (:func:`video_timeline`: frame k is the picture shown k / nominal fps s in, so its sound stays in
+    sync), as ``probe_clip`` counts them; ``decode_order`` True gives its decoded frames instead.
 
     Streams one decoded frame at a time. Videos are positioned by seeking to the keyframe
     before ``start`` where the packet timestamps make that exact (MP4/MOV, Matroska; any frame
@@ -749,7 +888,11 @@ def iter_frames(path: str | Path, start: int = 0, stop: int | None = None,
     if kind == "images":
         yield from _iter_images(files, start, stop)
     else:
-        yield from _iter_video(files[0], start, stop, cfr_fps)
+        timeline = None if decode_order else video_timeline(files[0])
+        if timeline is not None:
+            yield from _iter_timeline(files[0], timeline, start, stop)
+        else:
+            yield from _iter_video(files[0], start, stop)
 
 
 def _iter_images(files: list[Path], start: int, stop: int | None) -> Iterator[np.ndarray]:

@@ -121,6 +121,8 @@ def open_clip(s: "AutofocusSettings") -> ClipSetup:
     if s.start < 0 or s.start >= stop:
         raise InputError(f"frame range {s.start}..{stop} is empty for {s.input} ({clip.frame_count} frames)")
     depth = DisparitySource(cache=s.cache, depth=s.depth, scale=s.depth_scale, offset=s.depth_offset)
+    if depth.maps is not None:
+        depth.maps.place_on_timeline(clip)
     depth.check_length(stop - s.start, s.start)
     scale = min(1.0, s.analysis_width / clip.width)
     size = (max(int(round(clip.width * scale)), 8), max(int(round(clip.height * scale)), 8))

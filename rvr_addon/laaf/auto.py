@@ -18,6 +18,7 @@ The choice and the reading are logged and written to the focus file (``settings.
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -51,7 +52,10 @@ MOTION_SHARE = 0.025
 BIG_FACE = 0.04
 """A face covering this share of the frame is a subject in its own right (motion does not override it)."""
 
-_READINGS: dict[tuple, "ClipReading"] = {}
+_READINGS: "OrderedDict[tuple, ClipReading]" = OrderedDict()
+"""read_clip's memo (a look-ahead and a causal run of one clip probe it once), the last READINGS_KEPT
+readings: a long Blender session does not keep every clip's."""
+READINGS_KEPT = 8
 
 
 @dataclass
@@ -122,6 +126,7 @@ def read_clip(s, setup: "ClipSetup", audio: "AudioTrack | None" = None) -> tuple
     if audio is None and clip.kind == "video" and clip.has_audio:
         audio = _audio(clip.path, setup)
     if key in _READINGS:
+        _READINGS.move_to_end(key)
         return _READINGS[key], audio
     n = setup.n
     voiced = audio.voiced[:n] if audio is not None else np.zeros(0, bool)
@@ -152,6 +157,8 @@ def read_clip(s, setup: "ClipSetup", audio: "AudioTrack | None" = None) -> tuple
                           float(voiced.sum()) / setup.fps, with_face / max(len(probed), 1), max_faces, area,
                           float(np.median(motion)) if motion else 0.0, probed)
     _READINGS[key] = reading
+    while len(_READINGS) > READINGS_KEPT:
+        _READINGS.popitem(last=False)
     return reading, audio
 
 

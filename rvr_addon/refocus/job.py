@@ -235,7 +235,7 @@ def check_outputs(s: RefocusSettings) -> None:
 def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     """The chain of stages of one ``rvr refocus`` run and the record it fills in."""
     from ..io.video import probe_clip
-    from .proxy import ProxyJob, constant_rate, needs_proxy, proxy_size
+    from .proxy import ProxyJob, needs_proxy, proxy_size
 
     check_outputs(s)
     from ..render.device import resolve_device
@@ -249,8 +249,7 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         raise InputError(f"--aperture must be >= 0 (0 = no blur), got {s.aperture}")
     if s.max_size is not None and s.max_size < 0:
         raise InputError(f"--max-size {s.max_size}: give a long side in px (e.g. 1280), or 0 for the clip's size")
-    probed = probe_clip(s.input, fps=s.fps)
-    source = constant_rate(probed)  # a variable frame rate: frames of its constant-rate working copy
+    source = probe_clip(s.input, fps=s.fps)  # a variable frame rate: its constant-rate timeline
     if s.duration_s is not None:  # --duration: frames from --start at the clip's rate
         s = replace(s, stop=s.start + max(1, int(round(s.duration_s * source.fps))), duration_s=None)
     work = Path(s.cache) if s.cache is not None else default_work_folder(Path(s.input), Path(s.output))
@@ -261,6 +260,9 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
     refuse_picture_of_many(s.output, (source.frame_count if s.stop is None else min(s.stop, source.frame_count))
                            - s.start, "-o")
     run = RefocusRun(settings=s, work=work, clip=Path(s.input), cache=work / "cache")
+    if source.nominal_fps is not None:
+        run.notes.append(f"variable frame rate (average {source.average_fps:.4g} fps): worked at a constant "
+                         f"{source.nominal_fps:.4g} fps, each frame at its time, so sound and picture stay in sync")
     stages: list[Stage] = []
     factor = 1.0
     if proxy:
@@ -276,16 +278,13 @@ def refocus_job(s: RefocusSettings) -> tuple[JobChain, RefocusRun]:
         if (w, h) != (source.width, source.height):
             run.notes.append(f"working at {w}x{h} (the clip is {source.width}x{source.height}; --max-size 0 keeps "
                              f"its size)")
-        if probed.nominal_fps is not None:
-            run.notes.append(f"variable frame rate (average {probed.fps:.4g} fps): worked at a constant "
-                             f"{source.fps:.4g} fps, each frame at its time, so sound and picture stay in sync")
 
         def build_proxy():
             if run.clip.is_file():
                 return None  # made by an earlier run (written atomically: complete)
             if picture:
                 return OneShot(lambda: picture_copy(Path(s.input), run.clip, (w, h)))
-            return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, stop, fps=s.fps, clip=probed)
+            return ProxyJob(Path(s.input), run.clip, s.max_size, s.start, stop, fps=s.fps, clip=source)
 
         stages.append(Stage("working copy", STAGE_COST["working copy"] * run.frames, build_proxy))
     else:

@@ -1,12 +1,10 @@
 """The working copy of a clip: resized so its long side is at most ``max_size`` px and/or cut
 to a frame range, written once as a near-lossless H.264 MP4 (the source audio kept, from the
 range's start), so every later stage reads one small clip instead of resizing on each pass. A
-variable-frame-rate video (phones, Android above all) is copied at its nominal constant rate, each
-frame placed by its timestamp, so the sound the autofocus listens to and the output carries stays
-in sync with the picture."""
+variable-frame-rate video is read, like any clip, on its constant-rate timeline
+(``io.video.video_timeline``), so its copy is at that constant rate with its sound in sync."""
 from __future__ import annotations
 
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -31,21 +29,9 @@ def proxy_size(width: int, height: int, max_size: int | None) -> tuple[int, int]
 
 
 def needs_proxy(clip: ClipInfo, max_size: int | None, start: int, stop: int | None) -> bool:
-    """True when the clip must be resized, cut or brought to a constant frame rate (a
-    variable-frame-rate video, ``ClipInfo.nominal_fps``) before the pipeline reads it."""
+    """True when the clip must be resized or cut before the pipeline reads it."""
     whole = start == 0 and (stop is None or stop >= clip.frame_count)
-    return (proxy_size(clip.width, clip.height, max_size) != (clip.width, clip.height) or not whole
-            or clip.nominal_fps is not None)
-
-
-def constant_rate(clip: ClipInfo) -> ClipInfo:
-    """A variable-frame-rate video as its working copy will be: ``nominal_fps`` frames a second
-    (frame k shown at k / nominal_fps s), as many frames as its duration holds; other clips as
-    they are."""
-    if clip.nominal_fps is None:
-        return clip
-    seconds = clip.frame_count / clip.fps  # frames in decode order at their average rate
-    return replace(clip, fps=clip.nominal_fps, frame_count=max(1, int(round(seconds * clip.nominal_fps))))
+    return proxy_size(clip.width, clip.height, max_size) != (clip.width, clip.height) or not whole
 
 
 class ProxyJob(VideoWriteJob):
@@ -55,13 +41,9 @@ class ProxyJob(VideoWriteJob):
 
     def __init__(self, source: Path, output: Path, max_size: int | None, start: int = 0, stop: int | None = None,
                  fps: float | None = None, clip: ClipInfo | None = None) -> None:
-        """clip: the source's ClipInfo when the caller has probed it already (else probed here). A
-        variable-frame-rate video is copied at a constant rate (:func:`constant_rate`: start and
-        stop count frames of that timeline), so its sound stays in sync."""
+        """clip: the source's ClipInfo when the caller has probed it already (else probed here)."""
         self.source, self.output = Path(source), Path(output)
-        probed = clip if clip is not None else probe_clip(self.source, fps=fps)
-        self.cfr_fps = probed.nominal_fps
-        self.clip = constant_rate(probed)
+        self.clip = clip if clip is not None else probe_clip(self.source, fps=fps)
         self.stop = self.clip.frame_count if stop is None else min(stop, self.clip.frame_count)
         if start < 0 or start >= self.stop:
             raise InputError(f"--start {start} / --stop {stop}: the range is empty for '{self.source}' "
@@ -75,7 +57,7 @@ class ProxyJob(VideoWriteJob):
         audio = self.source if self.clip.has_audio else None
         writer = VideoWriter(self.output, fps=self.clip.fps, size=self.size, audio_from=audio, crf=PROXY_CRF,
                              audio_start=self.start / self.clip.fps)
-        return iter_frames(self.source, start=self.start, stop=self.stop, cfr_fps=self.cfr_fps), writer
+        return iter_frames(self.source, start=self.start, stop=self.stop), writer
 
     def frame(self, item: np.ndarray) -> np.ndarray:
         """The frame resized (area filter) to the copy's size."""
@@ -86,8 +68,5 @@ class ProxyJob(VideoWriteJob):
         return item
 
     def ended_early(self) -> None:
-        """A copy shorter than the range is refused (a constant-rate copy of a variable-rate clip may
-        end a frame before the count its duration gave)."""
-        if self.cfr_fps is not None and self.done >= self.total - 2 and self.done > 0:
-            return
+        """A copy shorter than the range is refused."""
         raise InputError(f"'{self.source}' ended after {self.done} of {self.total} frames")

@@ -213,30 +213,99 @@ def test_bad_fps(image_sequence, fps):
         probe_clip(image_sequence, fps=fps)
 
 
-def test_variable_frame_rate_warns(ffmpeg_run, tmp_path, caplog):
-    path = tmp_path / "vfr.mp4"
+def test_a_variable_frame_rate_clip_is_said_and_counted_on_its_timeline(ffmpeg_run, tmp_path, caplog):
+    path = tmp_path / "vfr.mp4"  # 6 frames at 24 fps, a quarter-second hold, then 6 at 8 fps
     ffmpeg_run("-f", "lavfi", "-i", "testsrc2=size=64x48:rate=24", "-frames:v", "12",
                "-vf", "setpts='if(lt(N,6),N/24,0.25+(N-6)/8)/TB'", "-fps_mode", "vfr",
                "-c:v", "libx264", "-preset", "ultrafast", "-pix_fmt", "yuv420p", str(path))
-    with caplog.at_level(logging.WARNING, logger="rvr_addon.io.video"):
+    with caplog.at_level(logging.INFO, logger="rvr_addon.io.video"):
         info = probe_clip(path)
-    assert info.frame_count == 12
-    assert sum(1 for _ in iter_frames(path)) == 12
-    assert any("variable-frame-rate" in r.getMessage() and "vfr.mp4" in r.getMessage() for r in caplog.records)
+    assert (info.fps, info.nominal_fps, info.decoded_frames) == (24.0, 24.0, 12)
+    assert info.frame_count == 22  # the last frame, shown at 0.25 + 5/8 s, is frame 0.875 x 24 = 21
+    assert sum(1 for _ in iter_frames(path)) == info.frame_count
+    assert sum(1 for _ in iter_frames(path, decode_order=True)) == 12
+    assert any("variable frame rate" in r.getMessage() and "vfr.mp4" in r.getMessage() for r in caplog.records)
 
 
 def test_a_variable_frame_rate_clip_decodes_at_its_nominal_constant_rate(ffmpeg_run, tmp_path):
     """In decode order the flash at 2.5 s is frame 55 (20 frames were dropped before it): at the
     container's average rate that is 2.2 s, out of step with its sound; on the constant-rate
-    timeline it is frame 75 = 2.5 s."""
+    timeline it is frame 75 = 2.5 s, also when read from frame 70 on (seeking)."""
     path = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
     info = probe_clip(path)
-    assert info.nominal_fps == pytest.approx(30.0) and info.fps < 29 and info.frame_count == 85
-    assert flash_frames(path)[0] == 55
-    assert flash_frames(path, cfr_fps=info.nominal_fps)[:1] == [75]
-    assert abs(sum(1 for _ in iter_frames(path, cfr_fps=30.0)) - 105) <= 1
-    assert flash_frames(path, start=70, stop=80, cfr_fps=30.0)[0] == 5  # frames of that timeline
-    assert probe_clip(path, fps=30.0).nominal_fps is None  # a rate the user gives is taken as it is
+    assert info.nominal_fps == info.fps == pytest.approx(30.0) and info.frame_count == 105
+    assert info.decoded_frames == 85 and info.average_fps == pytest.approx(85 / 3.5)
+    assert flash_frames(path)[:1] == [75]
+    assert flash_frames(path, decode_order=True)[:1] == [55]
+    assert flash_frames(path, start=70, stop=80)[0] == 5  # frames of that timeline
+    given = probe_clip(path, fps=30.0)  # a rate the user gives relabels the timeline, it does not change its frames
+    assert (given.fps, given.frame_count, given.nominal_fps) == (30.0, 105, 30.0)
+
+
+@pytest.mark.parametrize("suffix", [".mp4", ".mkv"])
+def test_the_timeline_shows_what_ffmpegs_fps_filter_shows(ffmpeg_run, ffmpeg, tmp_path, suffix):
+    """Every frame of the timeline (distinct test-pattern frames, a slow start and a 0.4 s gap) is
+    the one ffmpeg's ``fps`` filter places there, from the first frame and from a seek."""
+    import subprocess
+
+    path = tmp_path / f"vfr{suffix}"
+    ffmpeg_run("-f", "lavfi", "-i", "testsrc2=size=96x64:rate=30:duration=3", "-vf",
+               "setpts='if(lt(N,30),N/20,1.5+(N-30)/30+0.4*gte(N,60))/TB'", "-fps_mode", "vfr", "-g", "12",
+               "-c:v", "libx264", "-preset", "ultrafast", "-pix_fmt", "yuv420p", str(path))
+    info = probe_clip(path)
+    assert info.nominal_fps == pytest.approx(30.0) and info.decoded_frames == 90
+    raw = subprocess.run([ffmpeg, "-v", "error", "-i", str(path), "-vf", "fps=30", "-f", "rawvideo", "-pix_fmt",
+                          "rgb24", "-"], capture_output=True, check=True).stdout
+    want = np.frombuffer(raw, np.uint8).reshape(-1, 64, 96, 3)
+    got = np.stack(list(iter_frames(path)))
+    assert len(got) == len(want) == info.frame_count
+    assert np.array_equal(got, want)
+    assert np.array_equal(np.stack(list(iter_frames(path, start=41, stop=77))), want[41:77])
+
+
+def test_a_constant_rate_clip_is_not_a_timeline(ffmpeg_run, tmp_path):
+    """Frame times a little off their grid (a capture's jitter) and an interlaced MPEG stream
+    whose nominal rate is its field rate are constant-rate clips, counted as decoded."""
+    jitter = tmp_path / "jitter.mp4"
+    ffmpeg_run("-f", "lavfi", "-i", "testsrc2=size=64x48:rate=30", "-frames:v", "40", "-vf",
+               "setpts='(N/30+0.012*sin(N*1.7))/TB'", "-fps_mode", "vfr", "-c:v", "libx264", "-preset", "ultrafast",
+               "-pix_fmt", "yuv420p", str(jitter))
+    mpeg = tmp_path / "m1.mpg"
+    ffmpeg_run("-f", "lavfi", "-i", "testsrc2=size=64x48:rate=25", "-frames:v", "20", "-c:v", "mpeg1video",
+               "-f", "mpeg", str(mpeg))
+    for path, n, fps in ((jitter, 40, 30.0), (mpeg, 20, 25.0)):
+        info = probe_clip(path)
+        assert (info.frame_count, info.fps, info.nominal_fps, info.decoded_frames) == (n, fps, None, None)
+
+
+def test_1000_1001_rates_are_exact():
+    from rvr_addon.io.video import exact_rate
+
+    assert exact_rate(23.98) == pytest.approx(24000 / 1001, abs=1e-12)
+    assert exact_rate(29.97) == pytest.approx(30000 / 1001, abs=1e-12)
+    assert exact_rate(59.94) == pytest.approx(60000 / 1001, abs=1e-12)
+    assert exact_rate(25.0) == 25.0 and exact_rate(30.0) == 30.0
+
+
+def test_maps_of_the_decoded_frames_are_placed_on_the_timeline(ffmpeg_run, tmp_path):
+    """An external depth array with one map per decoded frame of a variable-frame-rate clip (as a
+    tool decoding it in order makes it): frame k reads the map of the decoded frame it shows."""
+    from rvr_addon.io.maps import open_map_sequence
+    from rvr_addon.io.video import video_timeline
+
+    path = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
+    info = probe_clip(path)
+    stack = np.arange(85, dtype=np.float32)[:, None, None] * np.ones((1, 4, 6), np.float32)
+    np.save(tmp_path / "d.npy", stack)
+    seq = open_map_sequence(tmp_path / "d.npy", kind="disparity")
+    seq.place_on_timeline(info)
+    assert len(seq) == 105
+    decoded = video_timeline(path).decoded
+    assert [float(seq.get(k)[0, 0]) for k in (0, 40, 75, 104)] == [float(decoded[k]) for k in (0, 40, 75, 104)]
+    assert float(seq.get(75)[0, 0]) == 55.0  # the flash's map on the flash
+    other = open_map_sequence(tmp_path / "d.npy", kind="disparity")
+    other.place_on_timeline(probe_clip(flash_clip(ffmpeg_run, tmp_path / "cfr.mp4", vfr=False)))
+    assert len(other) == 85  # a constant-rate clip: as it is
 
 
 # ----------------------------------------------------------------------------- seeking
@@ -276,8 +345,8 @@ def test_iter_frames_seeks_and_yields_exactly_the_frames_of_a_full_decode(seek_c
 
     path = seek_clips[name]
     scan = scan_packets(path)
-    full = list(iter_frames(path))
-    assert len(full) == SEEK_FRAMES == probe_clip(path).frame_count
+    full = list(iter_frames(path, decode_order=True))  # (the vfr clip's timeline: the test above)
+    assert len(full) == SEEK_FRAMES == (probe_clip(path).decoded_frames or probe_clip(path).frame_count)
     shown = sorted(p.pts for p in scan.packets)
     # the keyframes (display index) the starts are about: on them, just before and just after
     keys = [i for i, p in enumerate(scan.packets) if p.key]
@@ -290,11 +359,11 @@ def test_iter_frames_seeks_and_yields_exactly_the_frames_of_a_full_decode(seek_c
         assert seek_point(prefix, k) == seek_point(scan, k) is not None and "-ss" in _video_command(path, k, None), k
         if k < 50:  # decided by the keyframe at 50: the listing stops before the end of the file
             assert not prefix.complete and len(prefix.packets) < SEEK_FRAMES, k
-        part = list(iter_frames(path, start=k))
+        part = list(iter_frames(path, start=k, decode_order=True))
         assert len(part) == SEEK_FRAMES - k, k
         for i, (got, want) in enumerate(zip(part, full[k:])):
             np.testing.assert_array_equal(got, want, err_msg=f"{name}: frame {k + i} decoded from start={k}")
-    window = list(iter_frames(path, start=51, stop=54))
+    window = list(iter_frames(path, start=51, stop=54, decode_order=True))
     assert len(window) == 3 and all(np.array_equal(g, w) for g, w in zip(window, full[51:54]))
 
 

@@ -366,9 +366,9 @@ def test_refocus_takes_the_pull_options_and_they_name_the_focus_decision(tmp_pat
 
 
 def test_a_variable_frame_rate_clip_keeps_sound_and_picture_in_sync(ffmpeg_run, tmp_path, capsys):
-    """A phone's variable-frame-rate clip: the working copy is made at its nominal constant rate,
-    each frame at its time, so the refocused video's flash is where its beep is (in decode order
-    at the average rate it came 0.3 s early)."""
+    """A phone's variable-frame-rate clip is read at its nominal constant rate, each frame at its
+    time (no working copy needed at its own size), so the refocused video's flash is where its beep
+    is (in decode order at the average rate it came 0.3 s early)."""
     from vfr_synth import assert_in_sync, flash_clip
 
     clip = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
@@ -376,3 +376,23 @@ def test_a_variable_frame_rate_clip_keeps_sound_and_picture_in_sync(ffmpeg_run, 
     assert main(["refocus", str(clip), "-o", str(out), "--max-size", "0", "--depth-method", "network", "-q"]) == 0
     assert "variable frame rate" in capsys.readouterr().out
     assert_in_sync(out)
+
+
+def test_rvr_render_of_a_variable_frame_rate_clip_keeps_sound_and_picture_in_sync(ffmpeg_run, tmp_path):
+    """``rvr render`` alone (not only ``rvr refocus``) reads the clip's constant-rate timeline, and
+    depth maps with one map per decoded frame are placed on it: the flash keeps its beep, and the
+    frames whose map says "far" are the flash's."""
+    from vfr_synth import assert_in_sync, flash_clip
+
+    clip = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
+    maps = np.zeros((85, 180, 320), np.float32)
+    maps[55:59] = 8.0  # decoded frames 55-58 are the flash: strongly blurred, the rest sharp
+    np.save(tmp_path / "d.npy", maps)
+    out = tmp_path / "out.mp4"
+    assert main(["render", str(clip), "--depth", str(tmp_path / "d.npy"), "--focus", "0", "--aperture", "1",
+                 "-o", str(out), "-q"]) == 0
+    assert_in_sync(out)
+    frames = list(iter_frames(out))
+    flash = next(k for k, f in enumerate(frames) if f.mean() > 60)
+    row = frames[flash][90, 60:140, 0].astype(float)  # across the flash box's left edge at x = 100
+    assert np.abs(np.diff(row)).max() < 60  # blurred: its decoded frame's map (without placing: sharp)
