@@ -40,6 +40,17 @@ FALLBACKS = {"conversation": "faces", "action": "salient"}
 PRIMARY = {"action": "action", "conversation": "speech"}
 INITIAL_CHAIN = ("face", "saliency")  # the first focus when the preset finds nothing on frame 0
 K_MEANS = 4
+SPEAKER_REGION = frozenset({"speech", "face"})
+"""Detectors whose joint region is a speaking face's box: a target at any size (``region_min_area``)."""
+
+
+def region_min_area(used: tuple[str, ...], min_area: float) -> float:
+    """The smallest region (fraction of the frame) a frame's combination of the detectors ``used``
+    may give: ``min_area``, which keeps specks of the pixel maps (saliency, motion) from becoming
+    targets, except for the speaking face (speech alone or with the face detector), whose box the
+    face detector already took as a face: a person speaking in a wide shot (a face of 11 px in a
+    320 px analysis frame, 0.2 % of it) is the subject however small."""
+    return 0.0 if used and "speech" in used and set(used) <= SPEAKER_REGION else min_area
 
 
 def check_preset(name: str) -> tuple[str, ...]:
@@ -77,16 +88,17 @@ def intersect(outputs: dict[str, DetectorOutput], primary: str | None = None, mi
     if not live:
         return None, ()
     names = tuple(live)
+    own_min = region_min_area((primary,), min_area) if primary else min_area
     if primary in live and len(live) > 1 and live[primary].heat is not None:
         own = live[primary].heat >= 0.5
-        if own.mean() >= min_area and any(o.heat is None for o in live.values()):
+        if own.mean() >= own_min and any(o.heat is None for o in live.values()):
             return own, (primary,)
     if any(o.heat is None for o in live.values()):
         return None, names
     mask = np.logical_and.reduce([o.heat >= 0.5 for o in live.values()])
     if primary in live and len(live) > 1:
         own = live[primary].heat >= 0.5
-        if own.mean() >= min_area and mask.sum() < keep_fraction * own.sum():
+        if own.mean() >= own_min and mask.sum() < keep_fraction * own.sum():
             return own, (primary,)
     return mask, names
 

@@ -62,7 +62,7 @@ from .analysis import (FrameAnalyser, FrameMeasurement, build_detectors, check_f
                        shrink)
 from .calm import DEFAULT_CALM, calm_settings, check_calm, deadband, persists
 from .combine import (DEFAULT_PRESET, PRESETS, PRIMARY, Region, Step, StepDetector, intersect, majority_region,
-                      region_level)
+                      region_level, region_min_area)
 from .detectors.base import AnalysisFrame, DetectorOutput, FocusDetector
 from .focus_reading import read_focus
 from .keyframes import Key, keyframes
@@ -90,7 +90,8 @@ class AutofocusSettings:
     pull: pull length, lead, profile, hold. aperture: aperture scale of the track (>= 0).
     analysis_width: px width the detectors and the tracker work at (frames are shrunk to it).
     min_step: smallest focus change (disparity units) that makes an NFT.
-    min_area: smallest focus region, as a fraction of the frame.
+    min_area: smallest focus region, as a fraction of the frame (not for a speaking face:
+        ``combine.region_min_area``).
     keyframe_tol: the keyframes reproduce the track within this (disparity units).
     afnet_weights: AF-Net weights for preset 'learned' (None: rvr_addon/afnet/weights/afnet.pt).
     afnet_threshold: NFT probability an AF-Net peak must reach (0..1; None: the weights' own, else 0.5).
@@ -388,7 +389,7 @@ class AutofocusJob:
         t0 = time.perf_counter()
         outputs: dict[str, DetectorOutput] = {n: self.detectors[n].output(m) for n in self._combo}
         mask, used = intersect(outputs, PRIMARY.get(self.preset_used or ""), self.settings.min_area)
-        region = majority_region(mask, self.settings.min_area) if mask is not None else None
+        region = majority_region(mask, region_min_area(used, self.settings.min_area)) if mask is not None else None
         if region is not None:
             region.detectors = used
         level = region_level(af.disparity, region) if region is not None else float("nan")

@@ -38,6 +38,8 @@ def test_tile_sides_halve_the_short_side_down_to_the_smallest_useful_tile():
     assert tile_sides(720, 1280) == [720, 360]
     assert tile_sides(1080, 1920) == [1080, 540]
     assert tile_sides(360, 640) == [360]  # 180 px tiles would find faces too small to read
+    assert tile_sides(480, 960) == [480, 320]  # half is too small: the smallest useful tile instead
+    assert tile_sides(400, 720) == [400]  # 320 is not small enough to find what 400 misses
     assert tile_sides(200, 300) == [] and MIN_TILE_PX == 320
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from laaf_synth import entering_square, texture
-from rvr_addon.laaf.combine import StepDetector, intersect, majority_region
+from rvr_addon.laaf.combine import StepDetector, intersect, majority_region, region_min_area
 from rvr_addon.laaf.detectors.base import DetectorOutput
 from rvr_addon.laaf.focus_reading import read_focus
 from rvr_addon.laaf.tracking import SubjectTracker
@@ -118,6 +118,26 @@ def test_unavailable_detector_is_dropped_and_primary_is_not_vetoed():
     sal = DetectorOutput(blob(shape, (0, 0, 50, 90)))
     mask, used = intersect({"action": act, "saliency": sal}, primary="action", min_area=0.01)
     assert used == ("action",) and mask.sum() == 1200
+
+
+def test_a_small_speaking_face_is_a_region_where_a_speck_of_motion_is_not():
+    """A speaker in a wide shot: an 11 px face box in a 320x160 analysis frame (0.24 % of it, under
+    the 1 % floor that keeps specks of the pixel maps out) is still the focus region of the
+    conversation preset; the same speck from the action or saliency map is not."""
+    shape = (160, 320)
+    face = blob(shape, (180, 117, 11, 11))
+    outputs = {"speech": DetectorOutput(face), "face": DetectorOutput(face + blob(shape, (120, 130, 22, 22)))}
+    mask, used = intersect(outputs, primary="speech", min_area=0.01)
+    assert used == ("speech", "face") and mask.sum() == 121
+    assert region_min_area(used, 0.01) == 0.0
+    r = majority_region(mask, region_min_area(used, 0.01))
+    assert r is not None and r.box == (180.0, 117.0, 11.0, 11.0)
+    mask, used = intersect({"speech": DetectorOutput(face), "face": DetectorOutput(None)}, primary="speech",
+                           min_area=0.01)  # the face detector missed it on this frame: speech's box alone
+    assert used == ("speech",) and mask.sum() == 121
+    for used in (("action", "saliency"), ("action",), ("face",), ("saliency",)):
+        assert region_min_area(used, 0.01) == 0.01
+        assert majority_region(face > 0, region_min_area(used, 0.01)) is None
 
 
 def _steps(levels, causal):
