@@ -411,9 +411,20 @@ class PeopleDetector:
             whole = self._frames % TILE_EVERY == 0
             self._frames += 1
             found = face_tiles.tiled_boxes(detect, frame) if whole else face_tiles.around_boxes(detect, frame, self._small)
+            for box in [] if whole else self._small:  # not found again in its tile: still there if the mesh reads it
+                if not any(face_tiles.same_face(b, box) or face_tiles.same_face(box, b) for b, _ in found):
+                    x, y, bw, bh = box
+                    if face_landmarks(models["mesh"], frame, (x, y, x + bw, y + bh)) is not None:
+                        found.append((box, 0.0))
+            for face, box in zip(faces, known):  # a small face the whole frame found too: the tile's box, followed
+                better = face_tiles.tile_box(box, found, frame.shape) if not face["turned"] else None
+                if better is not None:
+                    x, y, bw, bh = better
+                    face.update({"box": (x, y, x + bw, y + bh), "box_w": bw, "turned_box": (x, y, x + bw, y + bh),
+                                 "follow": True})
             for (x, y, bw, bh), score in face_tiles.new_boxes(found, known):
                 faces.append({"box": (x, y, x + bw, y + bh), "score": score, "box_w": bw, "turned": 0,
-                              "turned_box": (x, y, x + bw, y + bh), "tiled": True})
+                              "turned_box": (x, y, x + bw, y + bh), "tiled": True, "follow": True})
         faces.sort(key=lambda f: -f["box_w"])
         faces = faces[:self.max_faces]
         for face in faces:
@@ -428,7 +439,7 @@ class PeopleDetector:
         if "mesh" in models:  # a face found turned or in a tile must be one the mesh reads
             faces = [f for f in faces if f["mesh"] or not (rotated or f.get("tiled"))]
         if not rotated:
-            self._small = [face_tiles.xywh(*f["box"]) for f in faces if f.get("tiled")]
+            self._small = [face_tiles.xywh(*f["box"]) for f in faces if f.get("follow")]
         for face in faces:
             face["distance"] = float(np.clip(focal_px(max(w, h), self.hfov_deg) * FACE_WIDTH_M / max(face["width"], 1e-3),
                                              MIN_DISTANCE_M, MAX_DISTANCE_M))

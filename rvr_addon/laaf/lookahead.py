@@ -136,6 +136,15 @@ class AutofocusSettings:
     calm: float = DEFAULT_CALM
 
 
+REANCHOR_FRAMES = 5
+"""Frames (at 25 fps: 0.2 s, the same seconds at any rate) a target's readings must agree on a new
+level, when they jumped from the level read within that long of the target's first frame, for the
+target to take it (``_reanchor``): the first reading was a glitch of the depth map (on a wide shot
+the far speaker's person layer missing for the frame the target was read at put him at the near
+one's depth, and every later reading, 4 units away, was refused as a slip of the box: the focus
+stayed on the wrong depth for his whole turn). A target tracked longer keeps refusing jumps."""
+
+
 @dataclass
 class TargetState:
     """A focus target being tracked: its NFT, per-frame level (NaN = unknown) and trackers."""
@@ -148,6 +157,8 @@ class TargetState:
     active: bool = True
     events: list[dict] = field(default_factory=list)
     boxes: dict[int, tuple[Box, bool]] = field(default_factory=dict)  # frame -> (analysis box, on subject)
+    first_read: int = -1  # the frame its level was first read at
+    jumped: list[tuple[int, float]] = field(default_factory=list)  # the latest run of consecutive rejected readings
 
 
 @dataclass
@@ -252,8 +263,9 @@ class AutofocusJob:
         self.buffer: deque[AnalysisFrame] = deque(maxlen=keep)
         self.targets: list[TargetState] = []
         # a tracked subject's reading may move this much per frame (disparity units); more is
-        # the box slipping onto another surface: ignored, the level is held
+        # the box slipping onto another surface: ignored, the level is held (but see _reanchor)
         self.max_jump = max(0.5, s.min_step)
+        self.reanchor_frames = max(2, frames_at(REANCHOR_FRAMES, self.fps))
         self.regions: dict[int, Region | None] = {}
         self.raw = np.full(self.n, np.nan, np.float32)
         self.held = np.full(self.n, np.nan, np.float32)
@@ -739,7 +751,7 @@ class AutofocusJob:
         """Start tracking a new target from frame t_box (analysis box), backwards over its pull
         and forwards up to the newest frame in the buffer; returns its state."""
         t0 = time.perf_counter()
-        tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box)
+        tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box, first_read=t_box)
         af = self._frame(t_box)
         tg.tracker = SubjectTracker()
         tg.tracker.start(af.rgb, box, t_box)
@@ -783,6 +795,26 @@ class AutofocusJob:
         self._timings["track_s"] += time.perf_counter() - t0
         return tg
 
+    def _reanchor(self, tg: TargetState) -> None:
+        """Take a young target's new level when its readings have jumped away from the first ones
+        and agree among themselves for ``reanchor_frames`` frames in a row (:data:`REANCHOR_FRAMES`):
+        the level it jumped from was the odd one. In look-ahead mode the frames since its first
+        reading take the new level too (the pull lands on it); causal mode cannot change the past."""
+        run = tg.jumped[-self.reanchor_frames:]
+        if len(run) < self.reanchor_frames or run[0][0] - tg.first_read > self.reanchor_frames:
+            return
+        values = np.array([v for _, v in run])
+        level = float(np.median(values))
+        if np.abs(values - level).max() > self.max_jump:
+            return
+        for k, v in run:
+            tg.level[k] = v
+        if not self.causal:
+            before = np.isfinite(tg.level[:run[0][0]])
+            tg.level[:run[0][0]][before] = level
+        tg.events.append({"frame": run[0][0], "status": "reanchor", "score": round(level, 3), "direction": "forward"})
+        tg.jumped.clear()
+
     def _update_target(self, tg: TargetState, af: AnalysisFrame) -> None:
         state = tg.tracker.update(af.rgb, af.t)
         tg.boxes[af.t] = (state.box, state.ok)
@@ -793,8 +825,13 @@ class AutofocusJob:
             if prior is not None and abs(value - prior) > self.max_jump:
                 tg.events.append({"frame": af.t, "status": "depth_jump", "score": round(value, 3),
                                   "direction": "forward"})
+                if tg.jumped and tg.jumped[-1][0] != af.t - 1:
+                    tg.jumped.clear()
+                tg.jumped.append((af.t, value))
+                self._reanchor(tg)
             else:
                 tg.level[af.t] = value
+                tg.jumped.clear()
         if state.status != "tracked":
             tg.events.append({"frame": af.t, "status": state.status, "score": round(state.score, 3),
                               "direction": "forward"})

@@ -195,3 +195,30 @@ def test_the_action_detector_sees_the_same_speed_in_px_a_second_at_any_frame_rat
     h25, h50 = heats(25.0, 1.2, 3), heats(50.0, 0.6, 5)
     assert h25[0] == pytest.approx(0.5) and h50[0] == pytest.approx(0.5)
     assert h50[2] == pytest.approx(h25[1], rel=1e-5) and h50[4] == pytest.approx(h25[2], rel=1e-5)  # 40, 80 ms on
+
+
+@pytest.mark.parametrize("causal", [False, True])
+def test_a_young_target_read_on_a_depth_glitch_takes_the_level_its_next_frames_agree_on(causal):
+    """A speaker's target read at -7 on its first frame (a frame where the depth map lost him), then
+    at -3 on every frame after: each later reading jumps by more than max_jump and is refused as a
+    slip of the box, until REANCHOR_FRAMES of them agree; then the target takes -3 (look-ahead: from
+    its first frame on, so the pull lands there; causal: from the run on). A target tracked longer
+    keeps refusing such jumps (its box sliding onto the background)."""
+    from rvr_addon.laaf.lookahead import REANCHOR_FRAMES, AutofocusJob, TargetState
+
+    job = object.__new__(AutofocusJob)
+    job.reanchor_frames, job.max_jump, job.causal = REANCHOR_FRAMES, 0.5, causal
+    tg = TargetState(None, np.full(40, np.nan, np.float32), (0, 0, 10, 10), first_read=10)
+    tg.level[10] = -7.0
+    for k in range(11, 11 + REANCHOR_FRAMES):
+        tg.jumped.append((k, -3.0 + 0.05 * (k % 2)))
+        job._reanchor(tg)
+    assert not tg.jumped and tg.events[-1]["status"] == "reanchor"
+    assert np.allclose(tg.level[11:11 + REANCHOR_FRAMES], -3.0, atol=0.06)
+    assert tg.level[10] == pytest.approx(-3.0, abs=0.06) if not causal else tg.level[10] == -7.0
+    old = TargetState(None, np.full(80, np.nan, np.float32), (0, 0, 10, 10), first_read=10)
+    old.level[10:50] = -7.0
+    for k in range(50, 50 + REANCHOR_FRAMES):
+        old.jumped.append((k, -3.0))
+        job._reanchor(old)
+    assert len(old.jumped) == REANCHOR_FRAMES and np.isnan(old.level[50:]).all()  # still refused
