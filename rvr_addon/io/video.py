@@ -18,12 +18,13 @@ packet with the k-th smallest presentation time; any frame rate, variable too). 
 cannot be guaranteed (containers whose seeking is approximate, missing or repeated timestamps,
 a stream that does not begin with a keyframe) it decodes from the beginning.
 
-A variable-frame-rate video (phones: Android above all, iPhones in low light; ffmpeg's average
-rate differs from the nominal one by more than 2 %) is read on a constant-rate timeline at its
-nominal rate (:class:`FrameTimeline`), frame k being the picture shown k / fps s in, placed by
-the packets' own presentation times, as Blender's sequencer shows the clip and as its sound
-runs: every command, ``rvr batch`` and the Blender tool count the same frames, and a frame's
-sound is its own. Its decoded frames are seeked and decoded as above, then repeated or skipped.
+A variable-frame-rate video (phones: Android above all, iPhones in low light; its frames, by
+their own presentation times, do not each fall on a frame of a timeline at the rate of its median
+frame interval) is read on a constant-rate timeline at its nominal rate (:class:`FrameTimeline`),
+frame k being the picture shown k / fps s in, as Blender's sequencer shows the clip and as its
+sound runs: every command, ``rvr batch`` and the Blender tool count the same frames, and a
+frame's sound is its own. Its decoded frames are seeked and decoded as above, then repeated or
+skipped.
 """
 from __future__ import annotations
 
@@ -112,22 +113,16 @@ def hdr_transfer(description: str) -> str | None:
     return None
 
 
-@functools.lru_cache(maxsize=64)
-def _description(path: str, mtime_ns: int, size: int) -> str:
-    """ffmpeg's description of a video file's input (keyed by its path, time and size: a replaced
-    file is read again)."""
-    run = subprocess.run([ffmpeg_exe(), "-hide_banner", "-nostdin", "-i", path], capture_output=True, check=False)
-    return run.stderr.decode("utf-8", "replace")
-
-
 def _file_key(video: Path) -> tuple[str, int, int]:
+    """(path, modification time, size) of a file: the key of what is read from it once (a replaced
+    file is read again)."""
     st = Path(video).stat()
     return str(video), st.st_mtime_ns, st.st_size
 
 
 def video_transfer(video: Path) -> str | None:
     """The HDR transfer of a video file ("HLG", "PQ (HDR10)"), None for SDR."""
-    return hdr_transfer(_description(*_file_key(video)))
+    return hdr_transfer(_listing(*_file_key(video)).description)
 
 
 def _hdr_filter(video: Path) -> str | None:
@@ -286,7 +281,7 @@ class _Listing:
 
 @functools.lru_cache(maxsize=16)
 def _listing(path: str, mtime_ns: int, size: int) -> _Listing:
-    """:func:`_scan_with_ffmpeg` of a file version (keyed like :func:`_description`)."""
+    """:func:`_scan_with_ffmpeg` of a file version (:func:`_file_key`)."""
     return _scan_with_ffmpeg(Path(path))
 
 
@@ -420,7 +415,8 @@ def timeline_of(shown_pts: "np.ndarray | list[int]", time_base: Fraction | float
     """``FrameTimeline.decoded`` of frames shown at ``shown_pts`` (time-base units, any order) on a
     timeline of ``fps`` frames a second from the first of them: per timeline frame, the index of
     the decoded frame shown then (int64)."""
-    seconds = (np.sort(np.asarray(shown_pts, dtype=np.int64)) - min(shown_pts)) * float(time_base)
+    shown = np.sort(np.asarray(shown_pts, dtype=np.int64))
+    seconds = (shown - shown[0]) * float(time_base)
     slot = np.floor(seconds * fps + 0.5).astype(np.int64)
     return np.searchsorted(slot, np.arange(int(slot[-1]) + 1), side="right") - 1
 
@@ -435,8 +431,8 @@ def _timeline(path: str, mtime_ns: int, size: int) -> FrameTimeline | None:
     pts = listing.shown_pts
     if pts is None or listing.time_base is None or len(pts) < 2 or len(np.unique(pts)) != len(pts):
         rates = stream_rates(listing.description)
-        if rates is not None and abs(rates[0] - rates[1]) > 0.02 * rates[1] and abs(rates[1] - 2 * rates[0]) > 0.02 * rates[1]:
-            # (a nominal rate twice the average is an interlaced stream's field rate, not a variable frame rate)
+        # (a nominal rate twice the average is an interlaced stream's field rate, not a variable frame rate)
+        if rates is not None and min(abs(rates[1] - rates[0]), abs(rates[1] - 2 * rates[0])) > 0.02 * rates[1]:
             log.warning("'%s' looks variable-frame-rate (average %.4g fps, nominal %.4g fps) but its frames' times are "
                         "missing or repeated, so its frames are read in decode order and the sound may drift against "
                         "them; convert it first (ffmpeg -i IN -fps_mode cfr -r %.4g OUT.mp4)", path, *rates, rates[1])

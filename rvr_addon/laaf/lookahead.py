@@ -798,8 +798,9 @@ class AutofocusJob:
     def _reanchor(self, tg: TargetState) -> None:
         """Take a young target's new level when its readings have jumped away from the first ones
         and agree among themselves for ``reanchor_frames`` frames in a row (:data:`REANCHOR_FRAMES`):
-        the level it jumped from was the odd one. In look-ahead mode the frames since its first
-        reading take the new level too (the pull lands on it); causal mode cannot change the past."""
+        the level it jumped from was the odd one. In look-ahead mode the run and the frames since its
+        first reading take the new level too (the pull lands on it); causal mode cannot change the
+        past: from the frame it decides on."""
         run = tg.jumped[-self.reanchor_frames:]
         if len(run) < self.reanchor_frames or run[0][0] - tg.first_read > self.reanchor_frames:
             return
@@ -807,7 +808,7 @@ class AutofocusJob:
         level = float(np.median(values))
         if np.abs(values - level).max() > self.max_jump:
             return
-        for k, v in run:
+        for k, v in run if not self.causal else run[-1:]:  # causal: from the frame it decides on
             tg.level[k] = v
         if not self.causal:
             before = np.isfinite(tg.level[:run[0][0]])
