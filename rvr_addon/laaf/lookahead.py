@@ -541,6 +541,8 @@ class AutofocusJob:
         if any(e <= tg.nft.t and first <= tg.nft.t for tg in self.targets):
             log.debug("step at frame %d: focus moved on since; dropped", e)
             return
+        if self._withdraw_taken_back(st, ingest):
+            return
         speaker = self._step_speaker(st)
         if speaker is not None and speaker == self._latest_subject(e):
             log.debug("step at frame %d: focus is on its speaker (%s) already; dropped", e, speaker)
@@ -574,6 +576,35 @@ class AutofocusJob:
             self._commit(Step(t_new, st.before, st.after), ingest, search=range(max(t_new - 4, 0), t_new + 1))
             return
         self._commit(st, ingest, search=search)
+
+    def _withdraw_taken_back(self, st, ingest: int) -> bool:
+        """A change of speaker back to the face the focus was on before the latest target, within a
+        pull of that target's frame: the speech chain took back the change it made there (its
+        decision for those frames was not final yet; on the interview made small, a pull to the
+        presenter at frame 380 was followed by one back to the guest at 381). Instead of pulling
+        there and straight back, that target is withdrawn and the one before resumes (its subject
+        tracked on from where it stopped). True when so."""
+        if self.causal or not self._speaker_turn(st):
+            return False
+        first, _ = shot_bounds(st.frame, self.cuts)
+        shot = sorted((tg for tg in self.targets if first <= tg.nft.t <= st.frame), key=lambda tg: tg.nft.t)
+        if len(shot) < 2:
+            return False
+        latest, before = shot[-1], shot[-2]
+        if (latest.nft.source != "speech" or latest.nft.detail.get("cut") or latest.nft.detail.get("start")
+                or st.frame - latest.nft.t > self.pull.pull_frames or self._step_speaker(st) != before.nft.subject
+                or before.tracker is None):
+            return False
+        self.targets.remove(latest)
+        before.active = True
+        for k in range(before.tracker.state.frame + 1, ingest + 1):
+            f = self._frame(k)
+            if f is not None:
+                self._update_target(before, f)
+        before.events.append({"frame": latest.nft.t, "status": "resumed", "score": 0.0, "direction": "forward"})
+        log.debug("step at frame %d: the change of speaker at frame %d was taken back; that target is withdrawn",
+                  st.frame, latest.nft.t)
+        return True
 
     def _initial_target(self, af: AnalysisFrame, region: Region | None, level: float, ingest: int,
                         t: int = 0) -> None:

@@ -226,3 +226,38 @@ def test_a_young_target_read_on_a_depth_glitch_takes_the_level_its_next_frames_a
         old.jumped.append((k, -3.0))
         job._reanchor(old)
     assert len(old.jumped) == REANCHOR_FRAMES and np.isnan(old.level[50:]).all()  # still refused
+
+
+def test_a_change_of_speaker_the_chain_takes_back_withdraws_its_target():
+    """The speech chain named the presenter at frame 380 (a pull there), then, with more of the
+    evidence, the guest again from 381: instead of a pull to the presenter and straight back, the
+    presenter's target is withdrawn and the guest's resumes. A change to a third face, or one more
+    than a pull after the target, is a new target as before; causal mode never withdraws."""
+    from types import SimpleNamespace
+
+    from rvr_addon.laaf.combine import Step
+    from rvr_addon.laaf.lookahead import AutofocusJob, TargetState
+    from rvr_addon.laaf.nft import NFT
+
+    def target(t, subject):
+        tg = TargetState(NFT(0.0, 0.0, t, (0, 0, 10, 10), "speech", known_at=t - 20, subject=subject),
+                         np.full(500, np.nan, np.float32), (0, 0, 10, 10), first_read=t)
+        tg.tracker = SimpleNamespace(state=SimpleNamespace(frame=400))  # tracked up to the newest frame
+        return tg
+
+    def job(causal=False):
+        j = object.__new__(AutofocusJob)
+        j.causal, j.cuts, j.pull, j.detectors = causal, [], SimpleNamespace(pull_frames=10), {}
+        j.targets = [target(48, "face1"), target(380, "face0")]
+        j.targets[0].active = False  # retired when the presenter's target came
+        return j
+
+    j = job()
+    guest = j.targets[0]
+    assert j._withdraw_taken_back(Step(381, 1.0, 3.0, speaker="face1", region_frame=390), ingest=400)
+    assert j.targets == [guest] and guest.active and guest.events[-1]["status"] == "resumed"
+    for step, causal in ((Step(381, 1.0, 3.0, speaker="face2"), False),  # a third face: a change of speaker
+                         (Step(395, 1.0, 3.0, speaker="face1"), False),  # more than a pull after it: a turn back
+                         (Step(381, 1.0, 3.0, speaker="face1"), True)):
+        j = job(causal)
+        assert not j._withdraw_taken_back(step, ingest=400) and len(j.targets) == 2
