@@ -381,7 +381,7 @@ def test_a_variable_frame_rate_clip_keeps_sound_and_picture_in_sync(ffmpeg_run, 
 def test_rvr_render_of_a_variable_frame_rate_clip_keeps_sound_and_picture_in_sync(ffmpeg_run, tmp_path):
     """``rvr render`` alone (not only ``rvr refocus``) reads the clip's constant-rate timeline, and
     depth maps with one map per decoded frame are placed on it: the flash keeps its beep, and the
-    frames whose map says "far" are the flash's."""
+    maps that put the flash far out of focus blur the frames that show it."""
     from vfr_synth import assert_in_sync, flash_clip
 
     clip = flash_clip(ffmpeg_run, tmp_path / "vfr.mp4")
