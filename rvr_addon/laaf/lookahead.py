@@ -597,10 +597,7 @@ class AutofocusJob:
             return False
         self.targets.remove(latest)
         before.active = True
-        for k in range(before.tracker.state.frame + 1, ingest + 1):
-            f = self._frame(k)
-            if f is not None:
-                self._update_target(before, f)
+        self._track_forward(before, before.tracker.state.frame + 1, ingest)
         before.events.append({"frame": latest.nft.t, "status": "resumed", "score": 0.0, "direction": "forward"})
         log.debug("step at frame %d: the change of speaker at frame %d was taken back; that target is withdrawn",
                   st.frame, latest.nft.t)
@@ -792,7 +789,7 @@ class AutofocusJob:
         p = self.pull
         back = SubjectTracker()
         back.start(af.rgb, box, t_box)
-        first, nxt = shot_bounds(nft.t, self.cuts)
+        first, _ = shot_bounds(nft.t, self.cuts)
         for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, first, 0) - 1, -1):
             f = self._frame(k)
             if f is None:
@@ -815,16 +812,22 @@ class AutofocusJob:
                 other.active = False
         self.targets.append(tg)
         self.targets.sort(key=lambda x: x.nft.t)
-        for k in range(t_box + 1, ingest + 1):
-            if nxt is not None and k >= nxt:  # the shot ended: no box is carried over the cut
+        self._track_forward(tg, t_box + 1, ingest)
+        self._timings["track_s"] += time.perf_counter() - t0
+        return tg
+
+    def _track_forward(self, tg: TargetState, start: int, ingest: int) -> None:
+        """Track ``tg``'s subject over frames start..ingest of the buffer, up to the end of its shot
+        (no box is carried over a cut: there the target ends)."""
+        _, nxt = shot_bounds(tg.nft.t, self.cuts)
+        for k in range(start, ingest + 1):
+            if nxt is not None and k >= nxt:
                 tg.active = False
                 tg.events.append({"frame": nxt, "status": "cut", "score": 0.0, "direction": "forward"})
                 break
             f = self._frame(k)
             if f is not None:
                 self._update_target(tg, f)
-        self._timings["track_s"] += time.perf_counter() - t0
-        return tg
 
     def _reanchor(self, tg: TargetState) -> None:
         """Take a young target's new level when its readings have jumped away from the first ones

@@ -20,24 +20,17 @@ from collections import OrderedDict
 
 import numpy as np
 
+from ...depth.face_tiles import iou
 from ..nft import Box
 from .base import AnalysisFrame, DetectorOutput, FocusDetector, boxes_heat
 
 log = logging.getLogger(__name__)
 
 
-def _iou(a: Box, b: Box) -> float:
-    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
-    x1, y1 = min(a[0] + a[2], b[0] + b[2]), min(a[1] + a[3], b[1] + b[3])
-    inter = max(0.0, x1 - x0) * max(0.0, y1 - y0)
-    union = a[2] * a[3] + b[2] * b[3] - inter
-    return inter / union if union > 0 else 0.0
-
-
 def _nms(boxes: list[Box], thresh: float = 0.3) -> list[Box]:
     kept: list[Box] = []
     for b in sorted(boxes, key=lambda b: -b[2] * b[3]):
-        if all(_iou(b, k) < thresh for k in kept):
+        if all(iou(b, k) < thresh for k in kept):
             kept.append(b)
     return kept
 
@@ -203,7 +196,7 @@ class FaceDetector(FocusDetector):
         for b in sorted(boxes, key=lambda b: -b[2] * b[3]):
             best, best_score = None, 0.0
             for tid, (tb, _) in free.items():
-                score = _iou(b, tb)
+                score = iou(b, tb)
                 cx, cy = b[0] + b[2] / 2 - tb[0] - tb[2] / 2, b[1] + b[3] / 2 - tb[1] - tb[3] / 2
                 if score < 0.2 and np.hypot(cx, cy) < 0.6 * max(tb[2], tb[3]):
                     score = 0.2
