@@ -555,8 +555,10 @@ class AutofocusJob:
         cut_tg = next((tg for tg in self.targets if tg.nft.t == first
                        and (tg.nft.detail.get("cut") or tg.nft.detail.get("start"))
                        and not (tg.nft.source == "speech" and "subject_from_frame" in tg.nft.detail)), None)
+        # the shot's first target is a guess (the largest face, a voice's region, saliency): a subject
+        # found within the look-ahead may replace it, not only within the minimum hold
         if (cut_tg is not None and not self.causal and self.calm.hold_frames
-                and e - p.lead_frames - p.pull_frames < first + self.calm.hold_frames
+                and e - p.lead_frames - p.pull_frames < first + max(self.calm.hold_frames, self.window)
                 and not any(first < tg.nft.t for tg in self.targets)):
             # look-ahead, soon after a cut: if this subject is already there on the cut frame (tracked
             # back to it), it is the shot's subject: focus on it on the cut itself
@@ -678,8 +680,10 @@ class AutofocusJob:
         for k in (search if search is not None else range(e, min(e + 4, self._measured))):
             if k < first or (nxt is not None and k >= nxt):
                 continue  # a region of another shot
-            r = self.regions.get(k)
-            if r is not None and abs(region_level(self._frame(k).disparity, r) - step.after) < max(0.5, 0.5 * abs(step.after - step.before)):
+            r, f = self.regions.get(k), self._frame(k)
+            if r is None or f is None:  # no region, or its frame has left the buffer (a region outlives it)
+                continue
+            if abs(region_level(f.disparity, r) - step.after) < max(0.5, 0.5 * abs(step.after - step.before)):
                 region, e_region = r, k
                 break
         if region is None:
@@ -706,7 +710,9 @@ class AutofocusJob:
             nft = replace(nft, t=c, known_at=max(c - 1, 0), pull_frames=at_cut.nft.pull_frames,
                           lead_frames=at_cut.nft.lead_frames,
                           detail={**nft.detail, "cut" if c > 0 else "start": True, "subject_from_frame": int(e)})
-        tg = self._add_target(nft, region.box, e_region, ingest, mask=region.mask)
+        hold_back = ((at_cut.nft.t, outputs_tid) if at_cut is not None and outputs_tid is not None
+                     and self._face_track_covers(outputs_tid, at_cut.nft.t, e_region) else None)
+        tg = self._add_target(nft, region.box, e_region, ingest, mask=region.mask, hold_back=hold_back)
         if at_cut is not None:
             if not np.isfinite(tg.level[at_cut.nft.t]):  # not there yet on the cut frame
                 self.targets.remove(tg)
@@ -775,9 +781,23 @@ class AutofocusJob:
     def _read(self, af: AnalysisFrame, box: Box, mask=None, prior: float | None = None) -> float:
         return read_focus(af.disparity, box, mask, prior=prior).value
 
-    def _add_target(self, nft: NFT, box: Box, t_box: int, ingest: int, mask=None) -> TargetState:
+    def _face_box(self, tid: str, k: int) -> Box | None:
+        """Face track ``tid``'s box on frame k (analysis px; the face detector's kept boxes), or None."""
+        face = self.detectors.get("face")
+        faces_at = getattr(face, "faces_at", None)
+        return next((b for b, _, i in faces_at(k) if i == tid), None) if faces_at is not None else None
+
+    def _face_track_covers(self, tid: str, a: int, b: int) -> bool:
+        """Whether face track ``tid`` is on every frame a..b."""
+        return all(self._face_box(tid, k) is not None for k in range(a, b + 1))
+
+    def _add_target(self, nft: NFT, box: Box, t_box: int, ingest: int, mask=None,
+                    hold_back: tuple[int, str] | None = None) -> TargetState:
         """Start tracking a new target from frame t_box (analysis box), backwards over its pull
-        and forwards up to the newest frame in the buffer; returns its state."""
+        and forwards up to the newest frame in the buffer; returns its state. hold_back: (a
+        frame before the buffer, a shot's first frame; the subject's face track, on every frame since):
+        where tracking back reaches the buffer's oldest frame, that frame's level is held back to it
+        in the face track's boxes (a talking head keeps its distance; the frames themselves are gone)."""
         t0 = time.perf_counter()
         tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box, first_read=t_box)
         af = self._frame(t_box)
@@ -793,6 +813,12 @@ class AutofocusJob:
         for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, first, 0) - 1, -1):
             f = self._frame(k)
             if f is None:
+                if hold_back is not None and hold_back[0] <= k and np.isfinite(tg.level[k + 1]):
+                    tg.level[hold_back[0]:k + 1] = tg.level[k + 1]
+                    for j in range(hold_back[0], k + 1):
+                        tg.boxes[j] = (tuple(self._face_box(hold_back[1], j)), True)
+                    tg.events.append({"frame": k, "status": "held_back", "score": round(float(tg.level[k + 1]), 3),
+                                      "direction": "backward"})
                 break
             state = back.update(f.rgb, k)
             if not state.ok:

@@ -293,6 +293,31 @@ def test_the_first_speaker_keeps_the_first_focus_when_a_second_speaks_within_the
     assert [n.t for n in rest] == [22] and rest[0].x > w / 2 and rest[0].source == "speech"
 
 
+def test_a_first_speaker_named_within_the_look_ahead_replaces_the_first_guess(tmp_path, monkeypatch):
+    """The clip's first focus names nobody (here the largest face, head 1): the first speaker, head 0,
+    whose turn starts at frame 44 (1.8 s), later than the minimum hold (1 s) and than the frames the
+    look-ahead buffer still holds, but within the look-ahead (2 s), is the first focus from frame 0
+    (his face track is on every frame since: his level is held back to it), not a pull to him after
+    1.2 s (the interview at half size began on the presenter and pulled to the guest at frame 36).
+    Causal mode cannot see him coming: a pull."""
+    from batch_synth import fake_faces, make_talking_clip
+    from rvr_addon.laaf.detectors import face, speech
+
+    clip, depth, audio = make_talking_clip(tmp_path, frames=100, turns=((44, 90, 0),), pan=0.0)
+    monkeypatch.setattr(face.FaceBackend, "detect", fake_faces)
+    monkeypatch.setattr(speech, "analyse_audio", lambda samples, fps, n, **kw: audio)
+    w = 200  # talking_blobs' frame width: head 0 left of the middle
+    runs = {causal: AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset="conversation", face_backend="haar",
+                                                   causal=causal)).run(progress=False) for causal in (False, True)}
+    la = runs[False]
+    assert len(la.nfts) == 1
+    first = la.nfts[0]
+    assert first.t == 0 and first.detail.get("start") and first.detail.get("subject_from_frame") == 44
+    assert first.x < w / 2 and first.source == "speech"
+    assert np.allclose(la.focus[:100], la.focus[60], atol=0.05)  # on him from frame 0, no pull
+    assert runs[True].nfts[0].x > w / 2 and [n.x < w / 2 for n in runs[True].nfts[1:]] == [True]
+
+
 def test_look_ahead_lands_every_change_of_speaker_before_the_voice_even_in_quick_turns(tmp_path, monkeypatch):
     """Three turns, the middle one (frames 36-52, 0.7 s) shorter than the minimum hold (1 s at the
     default calm): in look-ahead mode each change of speaker is a target at the new speaker's voice
