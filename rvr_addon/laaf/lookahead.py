@@ -795,9 +795,10 @@ class AutofocusJob:
                     hold_back: tuple[int, str] | None = None) -> TargetState:
         """Start tracking a new target from frame t_box (analysis box), backwards over its pull
         and forwards up to the newest frame in the buffer; returns its state. hold_back: (a
-        frame before the buffer, a shot's first frame; the subject's face track, on every frame since):
-        where tracking back reaches the buffer's oldest frame, that frame's level is held back to it
-        in the face track's boxes (a talking head keeps its distance; the frames themselves are gone)."""
+        shot's first frame; the subject's face track, on every frame since): where tracking back stops
+        before it (the buffer's oldest frame reached, the tracker lost, a reading that jumps), the last
+        level read is held back to it in the face track's boxes (a talking head keeps its distance; the
+        face track says the subject is there; the frames themselves may no longer be in memory)."""
         t0 = time.perf_counter()
         tg = TargetState(nft, np.full(self.n, np.nan, np.float32), box, first_read=t_box)
         af = self._frame(t_box)
@@ -812,22 +813,23 @@ class AutofocusJob:
         first, _ = shot_bounds(nft.t, self.cuts)
         for k in range(t_box - 1, max(nft.t - p.lead_frames - p.pull_frames - 2, first, 0) - 1, -1):
             f = self._frame(k)
-            if f is None:
+            state = back.update(f.rgb, k) if f is not None else None
+            value = None
+            if state is not None and state.ok:
+                tg.boxes[k] = (state.box, True)
+                value = self._read(f, state.box, prior=float(tg.level[k + 1]))
+            if value is not None and abs(value - float(tg.level[k + 1])) > self.max_jump:
+                tg.events.append({"frame": k, "status": "depth_jump", "score": round(value, 3), "direction": "backward"})
+                value = None  # e.g. a subject not yet in frame: the box sees what is behind it
+            if value is None:  # tracking back stops here: the frame has left the buffer, the tracker lost it, a jump
                 if hold_back is not None and hold_back[0] <= k and np.isfinite(tg.level[k + 1]):
+                    # the speaker's face track is on every frame since the shot's start: its level holds
                     tg.level[hold_back[0]:k + 1] = tg.level[k + 1]
                     for j in range(hold_back[0], k + 1):
                         tg.boxes[j] = (tuple(self._face_box(hold_back[1], j)), True)
                     tg.events.append({"frame": k, "status": "held_back", "score": round(float(tg.level[k + 1]), 3),
                                       "direction": "backward"})
                 break
-            state = back.update(f.rgb, k)
-            if not state.ok:
-                break
-            tg.boxes[k] = (state.box, True)
-            value = self._read(f, state.box, prior=float(tg.level[k + 1]))
-            if abs(value - float(tg.level[k + 1])) > self.max_jump:
-                tg.events.append({"frame": k, "status": "depth_jump", "score": round(value, 3), "direction": "backward"})
-                break  # e.g. a subject not yet in frame: the box sees what is behind it
             tg.level[k] = value
         for ev in back.events:
             tg.events.append({"frame": ev.frame, "status": ev.status, "score": round(ev.score, 3),

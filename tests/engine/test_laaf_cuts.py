@@ -318,6 +318,31 @@ def test_a_first_speaker_named_within_the_look_ahead_replaces_the_first_guess(tm
     assert runs[True].nfts[0].x > w / 2 and [n.x < w / 2 for n in runs[True].nfts[1:]] == [True]
 
 
+def test_the_first_speakers_level_is_held_back_over_a_reading_that_jumps(tmp_path, monkeypatch):
+    """As above, with the first speaker named early (his turn at frame 14, within the hold) but his
+    depth reading 1.5 units off on frames 0-3 (estimated depth on the real interview at its own
+    size: the guest's reading jumped at frame 2): tracking him back stops at the jump, and the
+    replacement used to fail there, so the clip began with a pull to him over its first frames. His
+    face track is on every frame since the start, so his level is held back to frame 0."""
+    from batch_synth import fake_faces, make_talking_clip
+    from rvr_addon.laaf.detectors import face, speech
+
+    clip, depth, audio = make_talking_clip(tmp_path, frames=60, turns=((14, 50, 0),), pan=0.0)
+    ramp = np.load(depth)
+    stack = np.repeat(ramp[None], 60, axis=0)
+    h, w = ramp.shape
+    stack[:4, :, : w // 2] += 1.5  # head 0's half reads 1.5 units further on the first frames
+    np.save(depth, stack)
+    monkeypatch.setattr(face.FaceBackend, "detect", fake_faces)
+    monkeypatch.setattr(speech, "analyse_audio", lambda samples, fps, n, **kw: audio)
+    la = AutofocusJob(AutofocusSettings(input=clip, depth=depth, preset="conversation",
+                                        face_backend="haar")).run(progress=False)
+    first = la.nfts[0]
+    assert len(la.nfts) == 1 and first.t == 0 and first.x < w / 2 and first.detail.get("subject_from_frame") == 14
+    assert np.allclose(la.focus[:40], la.focus[20], atol=0.05)  # his level from frame 0: no pull
+    assert any(e.get("status") == "held_back" for e in la.tracking)
+
+
 def test_look_ahead_lands_every_change_of_speaker_before_the_voice_even_in_quick_turns(tmp_path, monkeypatch):
     """Three turns, the middle one (frames 36-52, 0.7 s) shorter than the minimum hold (1 s at the
     default calm): in look-ahead mode each change of speaker is a target at the new speaker's voice

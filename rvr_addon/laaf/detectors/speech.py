@@ -255,6 +255,9 @@ class SpeechDetector(FocusDetector):
         self.switch_cost = float(switch_cost) * per_frame
         self.pause_cost = float(pause_cost) * per_frame
         self.onset_frames = max(1, int(round(onset_s * fps)))
+        # a correlation needs more frames than a voice onset's: over 3 frames any two mouths reach
+        # +-0.9 (causal mode's trailing window at an onset), a tie decided by the order of the faces
+        self.min_window = max(3, self.onset_frames + 1)
         self.commit_lag = max(0, int(round(commit_s * fps)))
         self.voice_id_weight = float(voice_id_weight)
         self.voice_weight = float(voice_weight)
@@ -498,7 +501,7 @@ class SpeechDetector(FocusDetector):
         else:
             lo, hi = max(t - radius, s - margin), min(t + radius, e + margin)
         lo, hi = max(lo, 1), min(hi, self._last)
-        return (lo, hi) if hi - lo + 1 >= 3 else None
+        return (lo, hi) if hi - lo + 1 >= self.min_window else None
 
     def flush(self) -> None:
         """End of the clip: the last frames' evidence is taken with the windows they have."""
@@ -614,7 +617,7 @@ class SpeechDetector(FocusDetector):
             states: dict[tuple[str, bool], float] = {NOBODY_STATE: hold}
             on_screen = frozenset(tid for _, _, tid in (self.faces.faces_at(t) if self.faces is not None else [])
                                   if tid is not None)
-            for tid in on_screen:
+            for tid in sorted(on_screen):  # a fixed order: the chain's ties do not follow string hashing
                 states[(tid, True)] = scores.get(tid, -1.0) if voiced else 0.0
                 states[(tid, False)] = hold
             factors = {tid: self._voice_factor(tid, t) for tid in on_screen} if voiced else {}
