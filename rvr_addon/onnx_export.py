@@ -26,7 +26,7 @@ import torch
 OPSET = 17
 
 
-def _export(module: torch.nn.Module, args: tuple, names_in: list[str], names_out: list[str],
+def export_graph(module: torch.nn.Module, args: tuple, names_in: list[str], names_out: list[str],
             dynamic: dict, meta: dict[str, str]) -> bytes:
     """ONNX bytes of ``module`` traced on ``args`` (TorchScript exporter, deterministic), with metadata."""
     import onnx
@@ -84,7 +84,7 @@ def export_estimator(weights: str | Path) -> bytes:
             plain.grid_head.bias.copy_(net.grid_head.bias.detach())
         meta["rvr_row_weights"] = json.dumps([float(v) for v in weight[:, -1, 0, 0]])
         net = plain
-    return _export(_Trunk(net).eval(), (torch.zeros(1, 3, 2 * s, 3 * s),), ["srgb"], ["grid", "e_logits"],
+    return export_graph(_Trunk(net).eval(), (torch.zeros(1, 3, 2 * s, 3 * s),), ["srgb"], ["grid", "e_logits"],
                    {"srgb": {2: "height", 3: "width"}, "grid": {2: "gh", 3: "gw"}, "e_logits": {2: "eh", 3: "ew"}},
                    meta)
 
@@ -107,7 +107,7 @@ def export_afnet(weights: str | Path) -> tuple[bytes, bytes]:
     head = {k: v for k, v in header.items() if k != "file_id"}
     base = {"rvr_source_hash": header["file_id"], "rvr_header": json.dumps(head, sort_keys=True)}
     cin = cfg.f_t * (cfg.channels + cfg.audio)
-    unit = _export(model.cnn1.eval(), (torch.zeros(2, cin, cfg.height, cfg.width),), ["x"], ["feat", "map"],
+    unit = export_graph(model.cnn1.eval(), (torch.zeros(2, cin, cfg.height, cfg.width),), ["x"], ["feat", "map"],
                    {"x": {0: "n"}, "feat": {0: "n"}, "map": {0: "n"}}, {**base, "rvr_graph": "afnet_unit"})
     fh, fw = cfg.height // 8, cfg.width // 8
     feats = torch.zeros(1, cfg.s * cfg.widths1[3], fh, fw)
@@ -116,7 +116,7 @@ def export_afnet(weights: str | Path) -> tuple[bytes, bytes]:
         dyn = {"feats": {0: "b"}, "audio": {0: "b"}, "logit": {0: "b"}}
     else:
         args, names, dyn = (feats,), ["feats"], {"feats": {0: "b"}, "logit": {0: "b"}}
-    headg = _export(_Head(model.cnn2, bool(cfg.audio)).eval(), args, names, ["logit"], dyn,
+    headg = export_graph(_Head(model.cnn2, bool(cfg.audio)).eval(), args, names, ["logit"], dyn,
                     {**base, "rvr_graph": "afnet_head"})
     return unit, headg
 

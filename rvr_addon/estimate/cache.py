@@ -87,10 +87,11 @@ Files of either compression are read alike, so caches written with ZIP stay vali
 STABILIZED_CHANNELS = ("S.D", "S.E.R", "S.E.G", "S.E.B", "S.C")
 MIB = 1 << 20
 KEY_FIELDS = ("format", "engine_version", "model_hash", "source_hash", "resolution", "depth")
-OPTIONAL_KEY_FIELDS = ("max_pixels", "context_pixels", "blur_span", "hdr_source", "frame_timeline")
+OPTIONAL_KEY_FIELDS = ("max_pixels", "context_pixels", "layout", "blur_span", "hdr_source", "frame_timeline")
 """Key fields compared like KEY_FIELDS but absent (= None) in older caches: ``max_pixels`` is the
 network trunk's size when it is not DEFAULT_MAX_PIXELS (``--max-pixels``); ``context_pixels`` the
 size of D's layout pass (``infer.CONTEXT_PIXELS``; caches made before it have none and recompute);
+``layout`` the hash of the layout head that gives D's layout since 2026-12-08 (``infer.SHIPPED_LAYOUT``);
 ``blur_span`` "long side" on a portrait clip, whose D spans its height since 2026-12-07
 (``depth.cues.blur_span``; portrait caches made before recompute, landscape ones stay valid);
 ``hdr_source`` on an HDR video (HLG, PQ), whose frames are tone-mapped to SDR since 2026-12-07

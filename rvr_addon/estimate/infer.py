@@ -39,6 +39,8 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 SHIPPED_WEIGHTS = WEIGHTS_DIR / "estimator.pt"
 SHIPPED_ONNX = WEIGHTS_DIR / "estimator.onnx"
 """The shipped weights exported to ONNX (``scripts/export_onnx.py``): what runs without torch."""
+SHIPPED_LAYOUT = WEIGHTS_DIR / "layout.onnx"
+"""D's layout head on a pretrained detector's trunk (:mod:`.layout`), ONNX, run by ONNX Runtime."""
 DEFAULT_MAX_PIXELS = 1920 * 1088
 """Frames with more pixels run the network on a copy shrunk to this many pixels; D is still
 sliced and E gated at full resolution."""
@@ -70,6 +72,22 @@ def default_weights() -> Path:
     if SHIPPED_ONNX.is_file():
         return SHIPPED_ONNX
     raise InputError(f"{NO_WEIGHTS_HELP} (looked for {SHIPPED_WEIGHTS})")
+
+
+def default_layout() -> object:
+    """The shipped layout head (:class:`.layout.LayoutModel` on ``layout.onnx``), or None where the
+    file or ONNX Runtime is missing (D's layout then comes from the network's own context pass; said
+    in the log)."""
+    from ..onnxrun import has_onnxruntime
+
+    if not SHIPPED_LAYOUT.is_file() or not has_onnxruntime():
+        log.warning("D's layout head is not available (%s): the network's own context pass gives D's layout; "
+                    "restore rvr_addon/estimate/weights/layout.onnx from the repository or install onnxruntime",
+                    "no onnxruntime" if SHIPPED_LAYOUT.is_file() else f"{SHIPPED_LAYOUT} is missing")
+        return None
+    from .layout import LayoutModel
+
+    return LayoutModel(SHIPPED_LAYOUT)
 
 
 @dataclass
@@ -257,14 +275,18 @@ class Estimator:
     luma and E is gated at full resolution, so edges stay sharp. None: the size the weights
     ask for (:func:`preferred_max_pixels`). context_pixels: D's layout from a second pass at
     this size (:data:`CONTEXT_PIXELS`, :func:`merge_context`, at the main pass's magnitude); 0
-    turns it off. E always comes from the main pass alone.
+    turns it off. layout: where D's layout comes from instead of that second pass: ``"auto"`` the
+    shipped layout head (:func:`default_layout`, :mod:`.layout`; None where it is unavailable), a
+    callable frame -> inverse depth up to scale and shift (larger = nearer), or None (the second
+    pass). E always comes from the main pass alone.
     """
 
     def __init__(self, model: LoadedModel, max_pixels: int | None = None,
-                 context_pixels: int = CONTEXT_PIXELS) -> None:
+                 context_pixels: int = CONTEXT_PIXELS, layout: object = "auto") -> None:
         self.model = model
         self.max_pixels = int(max_pixels) if max_pixels is not None else preferred_max_pixels(model)
         self.context_pixels = int(context_pixels)
+        self.layout = default_layout() if isinstance(layout, str) and layout == "auto" else layout
 
     def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """frame: (H, W, 3) uint8 sRGB. Returns (D (H, W) float32 in px of blur radius at
@@ -274,7 +296,10 @@ class Estimator:
         h, w = frame.shape[:2]
         d, e = self._pass(frame, self.max_pixels)
         if 0 < self.context_pixels < min(self.max_pixels, h * w):
-            d_context, _e = self._pass(frame, self.context_pixels, full_size=False)
+            if self.layout is not None:  # the layout head's inverse depth, in D's sign (+ = farther)
+                d_context = -self.layout(frame)
+            else:
+                d_context, _e = self._pass(frame, self.context_pixels, full_size=False)
             d = merge_context(d, d_context, CONTEXT_SIGMA * w)
         return d, e
 
@@ -505,6 +530,8 @@ class EstimateJob:
             key["max_pixels"] = self.estimator.max_pixels  # another trunk size gives other estimates
         if self.estimator is not None and self.estimator.context_pixels:
             key["context_pixels"] = self.estimator.context_pixels  # D's layout pass (caches made before it recompute)
+            if self.estimator.layout is not None:  # D's layout from the layout head (issue 20, 2026-12-08)
+                key["layout"] = self.estimator.layout.source_hash
         info = {"source": source, "fps": self.clip.fps, "clip_frame_count": self.clip.frame_count,
                 "model": self._model_info(), "hdr": "none (--no-hdr)" if s.no_hdr else "network",
                 "depth_plan": depth_record(self.plan, self.start, s.hfov_deg)}
@@ -557,8 +584,11 @@ class EstimateJob:
         if self.model is None:
             return None
         h = self.model.header
+        layout = self.estimator.layout if self.estimator is not None else None
         return {"path": str(self.model.path), "hash": self.model.model_hash, "iterations": h.get("iterations"),
-                "config": h.get("config"), "engine_version": h.get("engine_version")}
+                "config": h.get("config"), "engine_version": h.get("engine_version"),
+                "layout": ({"path": str(layout.graph.path), "hash": layout.source_hash} if layout is not None
+                           else "the network's context pass")}
 
     @property
     def progress(self) -> float:

@@ -256,6 +256,27 @@ def test_a_cache_made_before_the_context_pass_recomputes(clip, tmp_path):
     assert (again.computed, again.reused) == (N, 0)
 
 
+def test_a_cache_made_before_the_layout_head_recomputes(clip, tmp_path):
+    """The layout head that gives D's layout (infer.SHIPPED_LAYOUT, 2026-12-08) is in the key by its
+    hash, and meta.json's model record names it: a cache without it (the context pass's) recomputes."""
+    from rvr_addon.estimate.infer import SHIPPED_LAYOUT
+    from rvr_addon.onnxrun import file_hash, has_onnxruntime
+
+    if not (SHIPPED_LAYOUT.is_file() and has_onnxruntime()):
+        pytest.skip("the layout head or onnxruntime is not here")
+    cache = tmp_path / "cache"
+    settings = EstimateSettings(input=clip, output=cache, depth_method="network")
+    EstimateJob(settings).run(progress=False)
+    meta = json.loads((cache / "meta.json").read_text())
+    assert meta["layout"] == file_hash(SHIPPED_LAYOUT)
+    assert meta["model"]["layout"]["hash"] == file_hash(SHIPPED_LAYOUT)
+    del meta["layout"]
+    (cache / "meta.json").write_text(json.dumps(meta))
+    again = EstimateJob(settings)
+    again.run(progress=False)
+    assert (again.computed, again.reused) == (N, 0)
+
+
 def test_an_npy_stack_is_read_as_one_map_per_frame(tmp_path):
     stack = np.arange(5 * H * W, dtype=np.float32).reshape(5, H, W)
     np.save(tmp_path / "stack.npy", stack)
