@@ -96,6 +96,7 @@ class HeadSettings:
     procedural_share: float = 0.5
     seed: int = 0
     channels: int = 576
+    row: bool = True
 
 
 def _torch_modules():
@@ -111,17 +112,18 @@ def _torch_modules():
         def __init__(self, s: HeadSettings) -> None:
             super().__init__()
             self.drop = nn.Dropout2d(s.dropout)
-            self.c1 = nn.Conv2d(s.channels + 1, s.hidden, 1)
+            self.row = s.row
+            self.c1 = nn.Conv2d(s.channels + int(s.row), s.hidden, 1)
             self.g = nn.Linear(s.channels, s.hidden)
             self.c2 = nn.Conv2d(s.hidden, s.hidden, 3, padding=s.dilation, dilation=s.dilation)
             self.c3 = nn.Conv2d(s.hidden, 1, 3, padding=1)
 
         def forward(self, x: torch.Tensor) -> torch.Tensor:
-            n, _c, h, w = x.shape
-            ones = torch.ones_like(x[:, :1])
-            row = (ones.cumsum(2) - 1.0) / (ones.sum(2, keepdim=True) - 1.0).clamp(min=1.0)
             g = self.g(x.mean(dim=(2, 3)))
-            y = self.c1(self.drop(torch.cat([x, row], 1))) + g[:, :, None, None]
+            if self.row:
+                ones = torch.ones_like(x[:, :1])
+                x = torch.cat([x, (ones.cumsum(2) - 1.0) / (ones.sum(2, keepdim=True) - 1.0).clamp(min=1.0)], 1)
+            y = self.c1(self.drop(x)) + g[:, :, None, None]
             return self.c3(F.relu(self.c2(F.relu(y))))
 
     class HeadEnsemble(nn.Module):
@@ -303,6 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--output", required=True, help="folder for layout.onnx and layout.json")
     ap.add_argument("--cv", type=int, default=0, help="also score leave-scene-out with this many folds")
     ap.add_argument("--iterations", type=int, default=HeadSettings.iterations)
+    ap.add_argument("--no-row", action="store_true", help="no row coordinate among the head's inputs")
     a = ap.parse_args(argv)
     import torch
 
@@ -311,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(2)
     t0 = time.time()
-    s = HeadSettings(iterations=a.iterations)
+    s = HeadSettings(iterations=a.iterations, row=not a.no_row)
     trunk = load_trunk(a.trunk)
     pics = find_real_pictures(a.real)
     real = [prepare(trunk, p.name, p.scene, read_image(p), read_inverse_depth(p)) for p in pics]
