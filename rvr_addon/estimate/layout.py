@@ -83,7 +83,7 @@ class LayoutModel:
 
 @dataclass
 class HeadSettings:
-    """The head's shape and its fit (the recipe picked leave-scene-out, MODEL.md)."""
+    """The head's shape and its fit (the recipe picked leave-scene-out, LAYOUT.md)."""
 
     hidden: int = 32
     dilation: int = 2
