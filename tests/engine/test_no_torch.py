@@ -12,7 +12,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 
 TRAINING_ONLY = {
-    "rvr_addon.afnet.model", "rvr_addon.afnet.train", "rvr_addon.estimate.bilateral", "rvr_addon.estimate.head_fit", "rvr_addon.estimate.losses",
+    "rvr_addon.afnet.model", "rvr_addon.afnet.train", "rvr_addon.estimate.bilateral", "rvr_addon.estimate.head_fit", "rvr_addon.estimate.tfjs_graph", "rvr_addon.estimate.losses",
     "rvr_addon.estimate.train", "rvr_addon.estimate.unet", "rvr_addon.onnx_export", "rvr_addon.render.torch_render",
     "rvr_addon.training_run",
 }
