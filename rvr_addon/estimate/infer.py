@@ -286,7 +286,8 @@ class Estimator:
         self.model = model
         self.max_pixels = int(max_pixels) if max_pixels is not None else preferred_max_pixels(model)
         self.context_pixels = int(context_pixels)
-        self.layout = default_layout() if isinstance(layout, str) and layout == "auto" else layout
+        auto = isinstance(layout, str) and layout == "auto"
+        self.layout = (default_layout() if self.context_pixels > 0 else None) if auto else layout  # unused without a layout pass
 
     def __call__(self, frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """frame: (H, W, 3) uint8 sRGB. Returns (D (H, W) float32 in px of blur radius at
